@@ -1,0 +1,114 @@
+"""
+Training throughput: environment steps per second with one gradient step per environment step.
+
+MADDPG on speaker-listener (2 agents) is measured next to SB3's DDPG on Pendulum-v1 with the same network sizes
+and batch size, in the same run, and the ratio is printed (1.0 = two agents trained for the price of one SB3
+agent). Rounds are interleaved so that machine drift hits every configuration alike; the median is reported.
+
+    python benchmarks/throughput.py                  # one thread, 400-300 and 64-64, 4-agent task, MACB
+    python benchmarks/throughput.py --threads 2 --steps 2000 --rounds 5
+"""
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3 import DDPG
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.noise import NormalActionNoise
+
+from sb3_macb import MADDPG, make_joint_env
+
+
+def speaker_listener() -> gym.Env:
+    from mpe2 import simple_speaker_listener_v4
+
+    return make_joint_env(simple_speaker_listener_v4.parallel_env(continuous_actions=True, max_cycles=20))
+
+
+def spread4() -> gym.Env:
+    from mpe2 import simple_spread_v3
+
+    return make_joint_env(simple_spread_v3.parallel_env(N=4, continuous_actions=True, max_cycles=25))
+
+
+def make_model(kind: str, net: list[int], batch_size: int, seed: int, **kwargs: Any) -> BaseAlgorithm:
+    common = dict(batch_size=batch_size, learning_starts=100, seed=seed, device="cpu", policy_kwargs=dict(net_arch=net))
+    if kind == "ddpg":
+        env = gym.make("Pendulum-v1")
+        noise = NormalActionNoise(np.zeros(1), 0.1 * np.ones(1))
+        return DDPG("MlpPolicy", env, action_noise=noise, **common)
+    env = spread4() if kind == "maddpg-4" else speaker_listener()
+    dim = env.action_space.shape[0]
+    noise = NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim))
+    return MADDPG("MlpPolicy", env, action_noise=noise, **common, **kwargs)
+
+
+def steps_per_second(build: Callable[[], BaseAlgorithm], steps: int, warmup: int) -> float:
+    model = build()
+    model.learn(warmup)  # fills learning_starts, warms up allocators and kernels
+    start = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    return steps / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--steps", type=int, default=1500, help="timed environment steps per measurement")
+    parser.add_argument("--warmup", type=int, default=300)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--batch-size", type=int, default=100)
+    parser.add_argument("--quick", action="store_true", help="only the 400-300 pair")
+    args = parser.parse_args()
+    th.set_num_threads(args.threads)
+
+    big, small = [400, 300], [64, 64]
+    configs: dict[str, Callable[[], BaseAlgorithm]] = {
+        "SB3 DDPG, Pendulum-v1, 400-300": lambda: make_model("ddpg", big, args.batch_size, 0),
+        "MADDPG, speaker-listener (2 agents), 400-300": lambda: make_model("maddpg", big, args.batch_size, 0),
+    }
+    if not args.quick:
+        configs.update(
+            {
+                "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: make_model(
+                    "maddpg", big, args.batch_size, 0, exploration=MACB(beta=0.8, k=512)
+                ),
+                "SB3 DDPG, Pendulum-v1, 64-64": lambda: make_model("ddpg", small, args.batch_size, 0),
+                "MADDPG, speaker-listener, 64-64": lambda: make_model("maddpg", small, args.batch_size, 0),
+                "MADDPG, simple_spread N=4 (4 agents), 400-300": lambda: make_model("maddpg-4", big, args.batch_size, 0),
+                "MADDPG, simple_spread N=4 (4 agents), 64-64": lambda: make_model("maddpg-4", small, args.batch_size, 0),
+            }
+        )
+    results: dict[str, list[float]] = {name: [] for name in configs}
+    for _ in range(args.rounds):
+        for name, build in configs.items():
+            results[name].append(steps_per_second(build, args.steps, args.warmup))
+
+    med = {name: statistics.median(values) for name, values in results.items()}
+    print(f"\nthreads={args.threads} batch={args.batch_size} steps={args.steps} rounds={args.rounds} torch={th.__version__}")
+    print("| configuration | env steps/s (median) | min | max |")
+    print("|---|---|---|---|")
+    for name, values in results.items():
+        print(f"| {name} | {med[name]:.0f} | {min(values):.0f} | {max(values):.0f} |")
+    ratios = [
+        ("MADDPG 2 agents / SB3 DDPG, 400-300", "MADDPG, speaker-listener (2 agents), 400-300", "SB3 DDPG, Pendulum-v1, 400-300"),
+        ("MADDPG 2 agents / SB3 DDPG, 64-64", "MADDPG, speaker-listener, 64-64", "SB3 DDPG, Pendulum-v1, 64-64"),
+        (
+            "MADDPG+MACB / MADDPG, 400-300",
+            "MADDPG + MACB(k=512), speaker-listener, 400-300",
+            "MADDPG, speaker-listener (2 agents), 400-300",
+        ),
+    ]
+    for label, num, den in ratios:
+        if num in med and den in med:
+            print(f"ratio {label}: {med[num] / med[den]:.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,233 @@
+"""
+Several MLPs of the same shape (one per agent, or per agent and critic) held as stacked tensors and evaluated
+in one pass.
+
+Two interchangeable execution paths compute the same function and gradients:
+
+- a portable path built from ``torch.baddbmm`` (any device, any activation, autograd does the backward);
+- on CPU, for float32 and ReLU, a path that calls oneDNN's GEMM directly (``torch.ops.mkldnn._linear_pointwise``)
+  inside one autograd ``Function`` for all groups and layers, with a hand-written backward. On AVX-512 CPUs
+  (AMD EPYC in particular, where MKL takes its AVX2 code path) oneDNN runs these shapes about twice as fast as
+  ``bmm``, at full float32 precision. Small layers, where a call's fixed cost dominates, use ``torch.addmm``.
+"""
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from torch import nn
+
+# Layers with at least this many weights per group go through oneDNN's GEMM; smaller ones use addmm.
+ONEDNN_MIN_WEIGHTS = 8192
+
+
+def _onednn_linear_op() -> Any:
+    try:
+        if not th.backends.mkldnn.is_available():
+            return None
+        op = th.ops.mkldnn._linear_pointwise
+        x, w = th.ones(2, 3), th.ones(4, 3)
+        if not th.allclose(op(x, w, None, "none", [], ""), x @ w.t()):
+            return None
+        return op
+    except (AttributeError, RuntimeError):
+        return None
+
+
+_LINEAR = _onednn_linear_op()
+
+
+def onednn_available() -> bool:
+    """Whether the oneDNN CPU path can be used in this PyTorch build."""
+    return _LINEAR is not None
+
+
+def _linear(x: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, relu: bool) -> th.Tensor:
+    """``x @ weight.T + bias`` (then ReLU), with weight of shape (out, in)."""
+    if weight.numel() >= ONEDNN_MIN_WEIGHTS:
+        return _LINEAR(x, weight, bias, "relu" if relu else "none", [], "")
+    out = th.addmm(bias, x, weight.t()) if bias is not None else th.mm(x, weight.t())
+    return out.relu_() if relu else out
+
+
+def _matmul_nt(a: th.Tensor, b: th.Tensor) -> th.Tensor:
+    """``a @ b.T``."""
+    return _LINEAR(a, b, None, "none", [], "") if a.shape[1] * b.shape[0] >= ONEDNN_MIN_WEIGHTS else th.mm(a, b.t())
+
+
+class _GroupedReluMLP(th.autograd.Function):
+    """Forward and backward of all groups and layers of a ReLU MLP in one autograd node (CPU, oneDNN)."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        x: th.Tensor,
+        sum_groups: bool,
+        in_mask: th.Tensor | None,
+        out_masks: tuple[th.Tensor, th.Tensor] | None,
+        *params: th.Tensor,
+    ) -> th.Tensor:
+        # The weights arrive unmasked: masked entries are zero and stay zero because their gradient is masked
+        n_layers = len(params) // 2
+        weights, biases = params[:n_layers], params[n_layers:]
+        n_groups = weights[0].shape[0]
+        shared_input = x.dim() == 2
+        activations: list[list[th.Tensor]] = []  # per group: input, then each hidden layer's output
+        outputs = []
+        for g in range(n_groups):
+            h = x if shared_input else x[g]
+            acts = [h]
+            for layer in range(n_layers):
+                h = _linear(h, weights[layer][g], biases[layer][g], relu=layer < n_layers - 1)
+                if layer < n_layers - 1:
+                    acts.append(h)
+            activations.append(acts)
+            outputs.append(h)
+        ctx.activations = activations if any(ctx.needs_input_grad) else None
+        ctx.in_mask, ctx.out_masks = in_mask, out_masks
+        ctx.sum_groups = sum_groups
+        ctx.shared_input = shared_input
+        ctx.save_for_backward(*weights)
+        if sum_groups:
+            out = outputs[0]
+            for o in outputs[1:]:
+                out = out + o
+            return out
+        return th.stack(outputs)
+
+    @staticmethod
+    def backward(ctx: Any, grad_out: th.Tensor) -> tuple[th.Tensor | None, ...]:  # type: ignore[override]
+        weights = ctx.saved_tensors
+        n_layers = len(weights)
+        n_groups = weights[0].shape[0]
+        needs = ctx.needs_input_grad
+        need_x = needs[0]
+        need_w = needs[4 : 4 + n_layers]
+        need_b = needs[4 + n_layers :]
+        grad_w = [th.empty_like(w) if need else None for w, need in zip(weights, need_w)]
+        grad_b = [th.empty(w.shape[:2], dtype=w.dtype, device=w.device) if need else None for w, need in zip(weights, need_b)]
+        grad_x_groups = []
+        grad_out = grad_out.contiguous()
+        for g in range(n_groups):
+            acts = ctx.activations[g]
+            grad = grad_out if ctx.sum_groups else grad_out[g]
+            for layer in range(n_layers - 1, -1, -1):
+                if layer < n_layers - 1:
+                    grad = th.ops.aten.threshold_backward(grad, acts[layer + 1], 0)
+                if grad_w[layer] is not None:
+                    grad_w[layer][g] = _matmul_nt(grad.t(), acts[layer].t())
+                if grad_b[layer] is not None:
+                    grad_b[layer][g] = grad.sum(dim=0)
+                if layer > 0 or need_x:
+                    grad = _matmul_nt(grad, weights[layer][g].t())
+            if need_x:
+                grad_x_groups.append(grad)
+        ctx.activations = None
+        if grad_w[0] is not None and ctx.in_mask is not None:
+            grad_w[0].mul_(ctx.in_mask)
+        if ctx.out_masks is not None:
+            if grad_w[-1] is not None:
+                grad_w[-1].mul_(ctx.out_masks[0])
+            if grad_b[-1] is not None:
+                grad_b[-1].mul_(ctx.out_masks[1])
+        grad_x = None
+        if need_x:
+            grad_x = th.stack(grad_x_groups).sum(dim=0) if ctx.shared_input else th.stack(grad_x_groups)
+        return (grad_x, None, None, None, *grad_w, *grad_b)
+
+
+class GroupedMLP(nn.Module):
+    """
+    ``G`` independent MLPs of the same hidden sizes, evaluated together.
+
+    Group ``g`` reads only the input features where ``in_mask[g]`` is 1 and writes only the outputs where
+    ``out_mask[g]`` is 1, so groups with different input and output sizes share one set of stacked tensors
+    (no padding or gathering): the masked weights are multiplied by zero in the forward pass and never
+    receive a gradient. Each group is initialised like an ``nn.Linear`` of its own fan-in. Weights have
+    shape (G, out, in) and biases (G, out).
+
+    :param in_mask: (G, in_dim) 0/1 matrix: the input features each group reads.
+    :param hidden_sizes: Hidden layer sizes, shared by all groups.
+    :param out_mask: (G, out_dim) 0/1 matrix: the output features each group writes.
+    :param activation_fn: Activation between layers.
+    :param sum_groups: Return the sum over groups, (batch, out_dim), instead of (G, batch, out_dim). With
+        disjoint output masks this assembles one joint output vector.
+    """
+
+    use_onednn: bool = True  # class-wide switch; the oneDNN path is taken only where it applies
+
+    def __init__(
+        self,
+        in_mask: np.ndarray,
+        hidden_sizes: list[int],
+        out_mask: np.ndarray,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        sum_groups: bool = False,
+    ):
+        super().__init__()
+        in_mask_t = th.as_tensor(np.asarray(in_mask), dtype=th.float32)
+        out_mask_t = th.as_tensor(np.asarray(out_mask), dtype=th.float32)
+        n_groups = in_mask_t.shape[0]
+        self.n_groups = n_groups
+        self.sum_groups = sum_groups
+        self.activation = activation_fn()
+        self._relu = activation_fn is nn.ReLU
+        sizes = [in_mask_t.shape[1], *hidden_sizes, out_mask_t.shape[1]]
+        fan_ins = [in_mask_t.sum(dim=1), *[th.full((n_groups,), float(h)) for h in hidden_sizes]]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for layer, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+            bound = 1.0 / fan_ins[layer].clamp(min=1.0).sqrt()
+            weight = (th.rand(n_groups, n_out, n_in) * 2 - 1) * bound.view(n_groups, 1, 1)
+            bias = (th.rand(n_groups, n_out) * 2 - 1) * bound.view(n_groups, 1)
+            self.weights.append(nn.Parameter(weight))
+            self.biases.append(nn.Parameter(bias))
+        full_in = bool(in_mask_t.all())
+        self._full_out = bool(out_mask_t.all())
+        # Masks are buffers (they move with .to(device)); None when nothing is masked
+        self.register_buffer("in_mask", None if full_in else in_mask_t.unsqueeze(1))
+        self.register_buffer("out_mask", out_mask_t.unsqueeze(-1))
+        self.register_buffer("out_bias_mask", out_mask_t)
+        with th.no_grad():
+            if not full_in:
+                self.weights[0].mul_(self.in_mask)
+            self.weights[-1].mul_(self.out_mask)
+            self.biases[-1].mul_(self.out_bias_mask)
+
+    def forward(self, x: th.Tensor, groups: slice | None = None, detach_params: bool = False) -> th.Tensor:
+        """
+        :param x: (batch, in_dim), the same input for every group, or (G', batch, in_dim), one per group.
+        :param groups: Evaluate only these groups (e.g. the first critic of each agent).
+        :param detach_params: Use the parameters without recording their gradient (input gradients only):
+            used when back-propagating through a frozen network.
+        :return: (G', batch, out_dim), or (batch, out_dim) with ``sum_groups``.
+        """
+        weights, biases = list(self.weights), list(self.biases)
+        in_mask, out_mask, out_bias_mask = self.in_mask, self.out_mask, self.out_bias_mask
+        if detach_params:
+            weights = [w.detach() for w in weights]
+            biases = [b.detach() for b in biases]
+        if groups is not None:
+            # (slicing parameters that need a gradient would cost a zero-filled copy in backward)
+            weights = [w[groups] for w in weights]
+            biases = [b[groups] for b in biases]
+            in_mask = None if in_mask is None else in_mask[groups]
+            out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
+        if self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32:
+            # masked weights are zero already; the Function masks their gradients instead of the weights
+            out_masks = None if self._full_out else (out_mask, out_bias_mask)
+            return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, *weights, *biases)
+
+        if in_mask is not None:
+            weights[0] = weights[0] * in_mask
+        weights[-1] = weights[-1] * out_mask
+        biases[-1] = biases[-1] * out_bias_mask
+
+        if x.dim() == 2:
+            # same input for all groups: one broadcast matmul, no copies
+            h = th.matmul(x, weights[0].transpose(1, 2)).add_(biases[0].unsqueeze(1))
+        else:
+            h = th.baddbmm(biases[0].unsqueeze(1), x, weights[0].transpose(1, 2))
+        for weight, bias in zip(weights[1:], biases[1:]):
+            h = th.baddbmm(bias.unsqueeze(1), self.activation(h), weight.transpose(1, 2))
+        return h.sum(dim=0) if self.sum_groups else h
