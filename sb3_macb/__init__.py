@@ -1,13 +1,16 @@
 """sb3_macb: multi-agent algorithms (MADDPG) and count-based exploration (MACB) for Stable-Baselines3."""
 
-from sb3_macb.buffers import MultiAgentReplayBuffer
+from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
 from sb3_macb.envs import AgentLayout, JointEnv, make_joint_env
+from sb3_macb.exploration import MACB
 from sb3_macb.maddpg import MADDPG, MADDPGPolicy, MlpPolicy
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "MACB",
     "MADDPG",
+    "MACBReplayBuffer",
     "AgentLayout",
     "JointEnv",
     "MADDPGPolicy",

@@ -10,8 +10,9 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.td3 import TD3
 
-from sb3_macb.buffers import MultiAgentReplayBuffer
+from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
+from sb3_macb.exploration.macb import MACB
 from sb3_macb.maddpg.policies import MADDPGPolicy, MlpPolicy, MultiAgentActor, MultiAgentCritic
 
 SelfMADDPG = TypeVar("SelfMADDPG", bound="MADDPG")
@@ -29,7 +30,7 @@ class MADDPG(TD3):
     passed directly is wrapped the same way. All agents' networks are held as stacked tensors and trained in
     one batched pass. With ``centralized_critic=False`` every critic sees only its own agent (independent
     DDPG learners); with ``policy_kwargs=dict(n_critics=2)``, ``policy_delay=2`` and ``target_policy_noise=0.2``
-    it is MATD3.
+    it is MATD3. With ``exploration=MACB(...)`` the replay buffer adds MACB's count-based bonus to sampled rewards.
 
     :param policy: The policy model to use (``"MlpPolicy"``).
     :param env: The environment to learn from: a joint env, a PettingZoo env, or a registered env id.
@@ -50,6 +51,7 @@ class MADDPG(TD3):
     :param target_noise_clip: Limit for the absolute value of the target policy smoothing noise.
     :param centralized_critic: Whether each agent's critic sees all agents (MADDPG) or only its own agent's
         observation and action (independent DDPG learners).
+    :param exploration: Count-based exploration: an :class:`~sb3_macb.MACB`, a dict of its arguments, or None.
     :param stats_window_size: Window size for the rollout logging.
     :param tensorboard_log: The log location for tensorboard (if None, no logging).
     :param policy_kwargs: Additional arguments for the policy (``net_arch``, ``n_critics``, ...).
@@ -87,6 +89,7 @@ class MADDPG(TD3):
         target_policy_noise: float = 0.0,
         target_noise_clip: float = 0.5,
         centralized_critic: bool = True,
+        exploration: MACB | dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -105,6 +108,9 @@ class MADDPG(TD3):
             )
         self.agent_layout: AgentLayout | None = None
         self.centralized_critic = centralized_critic
+        self.exploration = MACB.from_config(exploration)
+        # MACB's settings travel in the saved data; its matrices and count tables are saved like a state dict
+        self.exploration_config: dict[str, Any] | None = None
         super().__init__(
             policy,
             env,
@@ -169,12 +175,23 @@ class MADDPG(TD3):
         if self.n_steps != 1:
             raise ValueError("MADDPG does not support n-step returns (n_steps must be 1)")
         layout = self.agent_layout
-        if self.replay_buffer_class is None:
+        if self.exploration is None and self.exploration_config is not None:
+            self.exploration = MACB(**self.exploration_config)  # loading a saved model
+        buffer_extra: dict[str, Any] = {"n_agents": layout.n_agents}
+        if self.exploration is not None:
+            self.exploration.setup(layout, seed=self.seed)
+            self.exploration_config = self.exploration.config
+            buffer_extra["exploration"] = self.exploration
+            if self.replay_buffer_class is None:
+                self.replay_buffer_class = MACBReplayBuffer
+            elif not issubclass(self.replay_buffer_class, MACBReplayBuffer):
+                raise TypeError(f"exploration=MACB needs a replay buffer deriving from MACBReplayBuffer, not {self.replay_buffer_class}")
+        elif self.replay_buffer_class is None:
             self.replay_buffer_class = MultiAgentReplayBuffer
         # The layout-derived arguments are passed while building, not stored in the user's kwargs
         user_policy_kwargs, user_buffer_kwargs = self.policy_kwargs, self.replay_buffer_kwargs
         self.policy_kwargs = {**user_policy_kwargs, "agent_layout": layout, "centralized_critic": self.centralized_critic}
-        self.replay_buffer_kwargs = {**user_buffer_kwargs, "n_agents": layout.n_agents}
+        self.replay_buffer_kwargs = {**user_buffer_kwargs, **buffer_extra}
         try:
             super()._setup_model()
         finally:
@@ -193,6 +210,27 @@ class MADDPG(TD3):
     def set_env(self, env: GymEnv | Any, force_reset: bool = True) -> None:
         super().set_env(env, force_reset=force_reset)
         self._check_layout(self.env)  # type: ignore[arg-type]
+
+    def load_replay_buffer(self, path: Any, truncate_last_traj: bool = True) -> None:
+        super().load_replay_buffer(path, truncate_last_traj)
+        buffer = self.replay_buffer
+        if not isinstance(buffer, MultiAgentReplayBuffer):
+            raise TypeError(f"Expected a MultiAgentReplayBuffer, the file holds a {type(buffer).__name__}")
+        if self.exploration is not None and not isinstance(buffer, MACBReplayBuffer):
+            raise ValueError("This model uses MACB but the replay buffer has no hash keys (it was saved without MACB)")
+        if isinstance(buffer, MACBReplayBuffer):
+            if self.exploration is None or buffer.hash_keys.shape[-1] != self.exploration.n_tables:
+                raise ValueError("This replay buffer was saved by a model using MACB with other settings than this model's")
+            buffer.exploration = self.exploration
+
+    def dump_logs(self) -> None:
+        if self.exploration is not None:
+            self.logger.record("exploration/num_codes", self.exploration.num_codes)
+            self.logger.record("exploration/count1_percent", 100.0 * self.exploration.count1_fraction)
+            mean_bonus = self.replay_buffer.pop_mean_bonus() if isinstance(self.replay_buffer, MACBReplayBuffer) else None
+            if mean_bonus is not None:
+                self.logger.record("exploration/mean_bonus", mean_bonus)
+        super().dump_logs()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
@@ -259,6 +297,12 @@ class MADDPG(TD3):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        if self.exploration is not None:
+            state_dicts = [*state_dicts, "exploration"]
+        return state_dicts, variables
 
     def _excluded_save_params(self) -> list[str]:
         return [

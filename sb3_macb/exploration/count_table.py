@@ -1,0 +1,148 @@
+"""A count table for 64-bit keys: open addressing in numpy arrays, vectorized inserts and lookups."""
+
+import numpy as np
+
+_EMPTY = np.uint64(0)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def mix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64 finalizer: a bijective mixing of 64-bit integers (wrapping arithmetic)."""
+    x = x.astype(np.uint64, copy=True)
+    x ^= x >> np.uint64(30)
+    x *= _M1
+    x ^= x >> np.uint64(27)
+    x *= _M2
+    x ^= x >> np.uint64(31)
+    return x
+
+
+def fold_words(words: np.ndarray) -> np.ndarray:
+    """
+    One well-mixed non-zero 64-bit key per row of 64-bit words (a hash code of up to ``64 * n_words`` bits).
+
+    Codes of at most 64 bits map to distinct keys (the mixing is a bijection); longer codes are combined by a
+    position-dependent mixing, where two distinct codes share a key with probability about 2^-64.
+
+    :param words: (n, n_words) uint64.
+    :return: (n,) uint64, never 0 (0 marks an empty slot).
+    """
+    n_words = words.shape[1]
+    key = mix64(words[:, 0])
+    for j in range(1, n_words):
+        key = mix64(key ^ (words[:, j] + _GOLDEN * np.uint64(j)))
+    key[key == _EMPTY] = np.uint64(1)
+    return key
+
+
+class CountTable:
+    """
+    Counts of 64-bit keys (non-zero, well mixed), stored in two flat arrays: keys (uint64) and counts (uint32),
+    probed linearly. The table doubles when more than 3/4 full, so it uses 16 to 32 bytes per distinct key,
+    and an insert or a lookup costs a few vectorized passes whatever the table size.
+
+    :param capacity: Initial number of slots (rounded up to a power of two).
+    """
+
+    max_load = 0.75
+
+    def __init__(self, capacity: int = 1024):
+        capacity = 1 << max(4, int(np.ceil(np.log2(max(capacity, 16)))))
+        self.keys = np.zeros(capacity, dtype=np.uint64)
+        self.counts = np.zeros(capacity, dtype=np.uint32)
+        self.num_codes = 0
+        self.total_count = 0
+        self.num_count1 = 0
+
+    @property
+    def capacity(self) -> int:
+        return len(self.keys)
+
+    @property
+    def nbytes(self) -> int:
+        return self.keys.nbytes + self.counts.nbytes
+
+    def _probe(self, keys: np.ndarray, insert: bool) -> np.ndarray:
+        """Slots of distinct ``keys``; missing keys are inserted (count 0) or reported as -1."""
+        mask = np.uint64(self.capacity - 1)
+        slots = (keys & mask).astype(np.int64)
+        result = np.full(len(keys), -1, dtype=np.int64)
+        pending = np.arange(len(keys))
+        table_keys = self.keys
+        while len(pending):
+            pslots = slots[pending]
+            current = table_keys[pslots]
+            found = current == keys[pending]
+            result[pending[found]] = pslots[found]
+            empty = current == _EMPTY
+            if insert and empty.any():
+                # several pending keys may claim the same empty slot: the first wins, the others probe on
+                claim_idx = np.flatnonzero(empty)
+                _, first = np.unique(pslots[claim_idx], return_index=True)
+                winners = claim_idx[first]
+                table_keys[pslots[winners]] = keys[pending[winners]]
+                result[pending[winners]] = pslots[winners]
+                self.num_codes += len(winners)
+                done = found.copy()
+                done[winners] = True
+            else:
+                done = found | empty  # not inserting: an empty slot means the key is absent
+            keep = ~done
+            pending = pending[keep]
+            slots[pending] = (pslots[keep] + 1) & int(mask)
+        return result
+
+    def _grow(self, needed: int) -> None:
+        capacity = self.capacity
+        while needed > self.max_load * capacity:
+            capacity *= 2
+        if capacity == self.capacity:
+            return
+        occupied = self.keys != _EMPTY
+        old_keys, old_counts = self.keys[occupied], self.counts[occupied]
+        self.keys = np.zeros(capacity, dtype=np.uint64)
+        self.counts = np.zeros(capacity, dtype=np.uint32)
+        self.num_codes = 0
+        slots = self._probe(old_keys, insert=True)
+        self.counts[slots] = old_counts
+
+    def add(self, keys: np.ndarray) -> None:
+        """Count each key once more (a key repeated in ``keys`` is counted as often as it appears)."""
+        keys = np.asarray(keys, dtype=np.uint64).ravel()
+        if len(keys) == 1:
+            unique, repeats = keys, np.ones(1, dtype=np.uint32)
+        else:
+            unique, repeats = np.unique(keys, return_counts=True)
+        self._grow(self.num_codes + len(unique))
+        slots = self._probe(unique, insert=True)
+        old = self.counts[slots]
+        new = old + repeats.astype(np.uint32)
+        self.counts[slots] = new
+        self.num_count1 += int(np.count_nonzero(new == 1)) - int(np.count_nonzero(old == 1))
+        self.total_count += len(keys)
+
+    def lookup(self, keys: np.ndarray) -> np.ndarray:
+        """Counts of ``keys`` (0 for a key never counted)."""
+        keys = np.asarray(keys, dtype=np.uint64).ravel()
+        unique, inverse = np.unique(keys, return_inverse=True)
+        slots = self._probe(unique, insert=False)
+        counts = np.where(slots >= 0, self.counts[np.maximum(slots, 0)], 0)
+        return counts[inverse.ravel()]
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The occupied entries, compactly (for saving)."""
+        occupied = self.keys != _EMPTY
+        return {"keys": self.keys[occupied], "counts": self.counts[occupied]}
+
+    @classmethod
+    def from_state(cls, keys: np.ndarray, counts: np.ndarray) -> "CountTable":
+        keys = np.asarray(keys, dtype=np.uint64)
+        counts = np.asarray(counts, dtype=np.uint32)
+        table = cls(capacity=int(len(keys) / cls.max_load) + 1)
+        slots = table._probe(keys, insert=True)
+        table.counts[slots] = counts
+        table.total_count = int(counts.sum(dtype=np.int64))
+        table.num_count1 = int(np.count_nonzero(counts == 1))
+        return table

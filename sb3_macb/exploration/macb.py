@@ -1,0 +1,245 @@
+"""MACB: Multi-Agent Count-Based exploration with SimHash (the paper's section 4 and Algorithm 1)."""
+
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from sb3_macb.envs.joint_env import AgentLayout
+from sb3_macb.exploration.count_table import CountTable, fold_words
+
+SCOPES = ("joint", "local", "state")
+
+
+class SimHash:
+    """
+    SimHash codes ``sign(A v)`` with ``A`` a (k, D) matrix of i.i.d. standard normal entries, folded to one 64-bit
+    key per vector. (``A v = 0`` exactly, which happens only for ``v = 0``, is counted with the negative sign.)
+
+    :param k: Number of bits of the code (its granularity).
+    :param dim: Size D of the hashed vectors.
+    :param rng: Generator for ``A``.
+    :param decimals: Round the vectors to this many decimals before hashing (the paper's code used 2); None: no rounding.
+    """
+
+    def __init__(self, k: int, dim: int, rng: np.random.Generator, decimals: int | None = 2):
+        self.k = k
+        self.decimals = decimals
+        self.matrix_t = rng.standard_normal((k, dim)).astype(np.float32).T.copy()  # (D, k): v @ A^T
+        self._pad_bytes = (-((k + 7) // 8)) % 8
+
+    def keys(self, vectors: np.ndarray) -> np.ndarray:
+        """:param vectors: (n, D) array. :return: (n,) uint64 keys."""
+        v = np.asarray(vectors, dtype=np.float32)
+        if self.decimals is not None:
+            v = np.round(v, self.decimals)
+        packed = np.packbits(v @ self.matrix_t > 0, axis=1)
+        if self._pad_bytes:
+            packed = np.pad(packed, ((0, 0), (0, self._pad_bytes)))
+        return fold_words(np.ascontiguousarray(packed).view(np.uint64))
+
+
+class MACB:
+    """
+    Multi-Agent Count-Based exploration: SimHash codes of observations and actions are counted when a transition
+    is collected, and ``beta / sqrt(n)`` is added to the rewards of every sampled minibatch (never stored).
+
+    Pass it to MADDPG as ``exploration=MACB(...)`` (or a dict of these arguments). After training it holds the
+    count tables: ``num_codes``, ``total_count`` and ``count1_fraction``.
+
+    :param beta: Bonus coefficient (>= 0).
+    :param k: Length of the SimHash code in bits (>= 1).
+    :param scope: What is counted. ``"joint"``: all agents' observations and actions in one table shared by all
+        agents (the paper's MACB(s, x)); ``"local"``: one table per agent over its own observation and action,
+        each agent's critic getting its own bonus (MACB(o_i, a_i)); ``"state"``: joint observations only.
+    :param seed: Seed of the SimHash matrices; None: the model's seed.
+    :param decimals: Round observations and actions to this many decimals before hashing (None: no rounding).
+    """
+
+    def __init__(
+        self,
+        beta: float = 0.8,
+        k: int = 512,
+        scope: str = "joint",
+        seed: int | None = None,
+        decimals: int | None = 2,
+    ):
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ValueError(f"MACB: k (the hash code length) must be an integer >= 1, got {k!r}")
+        try:
+            beta = float(beta)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"MACB: beta must be a number >= 0, got {beta!r}") from exc
+        if not np.isfinite(beta) or beta < 0:
+            raise ValueError(f"MACB: beta must be a finite number >= 0, got {beta!r}")
+        if scope not in SCOPES:
+            raise ValueError(f"MACB: unknown scope {scope!r}; expected one of {SCOPES}")
+        if decimals is not None and (not isinstance(decimals, (int, np.integer)) or decimals < 0):
+            raise ValueError(f"MACB: decimals must be None or an integer >= 0, got {decimals!r}")
+        self.beta = beta
+        self.k = int(k)
+        self.scope = scope
+        self.seed = seed
+        self.decimals = decimals
+        self.hashes: list[SimHash] = []
+        self.tables: list[CountTable] = []
+        self._layout: AgentLayout | None = None
+
+    @classmethod
+    def from_config(cls, config: "MACB | dict[str, Any] | None") -> "MACB | None":
+        """An MACB from an MACB, a dict of its arguments (e.g. from YAML), or None."""
+        if config is None or isinstance(config, MACB):
+            return config
+        if not isinstance(config, dict):
+            raise TypeError(f"exploration must be an MACB, a dict of MACB arguments, or None; got {type(config).__name__}")
+        known = {"beta", "k", "scope", "seed", "decimals"}
+        unknown = sorted(set(config) - known)
+        if unknown:
+            raise ValueError(f"Unknown MACB option(s) {unknown}; known options are {sorted(known)}")
+        return cls(**config)
+
+    def __repr__(self) -> str:
+        return f"MACB(beta={self.beta}, k={self.k}, scope={self.scope!r}, seed={self.seed}, decimals={self.decimals})"
+
+    # --- setup and state ---------------------------------------------------------------------------------------
+
+    @property
+    def is_setup(self) -> bool:
+        return bool(self.tables)
+
+    @property
+    def n_tables(self) -> int:
+        return len(self.tables)
+
+    def setup(self, layout: AgentLayout, seed: int | None = None) -> None:
+        """
+        Build the hash matrices and empty count tables for this agent layout (done by MADDPG).
+
+        :param layout: The agents' observation and action sizes.
+        :param seed: Seed used when ``self.seed`` is None (MADDPG passes its own seed).
+        """
+        if self.is_setup and self._layout == layout:
+            return
+        if self.seed is None:
+            self.seed = int(seed) if seed is not None else int(np.random.SeedSequence().entropy % (2**31))
+        rng = np.random.default_rng(self.seed)
+        self._layout = layout
+        if self.scope == "local":
+            dims = [o + a for o, a in zip(layout.obs_dims, layout.action_dims)]
+        elif self.scope == "joint":
+            dims = [layout.obs_dim + layout.action_dim]
+        else:
+            dims = [layout.obs_dim]
+        self.hashes = [SimHash(self.k, dim, rng, self.decimals) for dim in dims]
+        self.tables = [CountTable() for _ in dims]
+
+    def _require_setup(self) -> None:
+        if not self.is_setup:
+            raise RuntimeError("This MACB is not attached to a model yet (pass it to MADDPG(exploration=...))")
+
+    def keys(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """
+        :param obs: (n, obs_dim) joint observations.
+        :param actions: (n, action_dim) joint actions as stored in the buffer (scaled to [-1, 1], noise included).
+        :return: (n, n_tables) uint64 keys.
+        """
+        self._require_setup()
+        layout = self._layout
+        assert layout is not None
+        if self.scope == "joint":
+            vectors = [np.concatenate([obs, actions], axis=1)]
+        elif self.scope == "state":
+            vectors = [obs]
+        else:
+            vectors = [
+                np.concatenate([obs[:, o], actions[:, a]], axis=1) for o, a in zip(layout.obs_slices, layout.action_slices)
+            ]
+        return np.stack([h.keys(v) for h, v in zip(self.hashes, vectors)], axis=1)
+
+    def count(self, keys: np.ndarray) -> None:
+        """Count collected transitions. :param keys: (n, n_tables) from :meth:`keys`."""
+        for i, table in enumerate(self.tables):
+            table.add(keys[:, i])
+
+    def bonus(self, keys: np.ndarray) -> np.ndarray:
+        """
+        ``beta / sqrt(n)`` for each key, from the current counts (counting nothing).
+
+        :param keys: (n, n_tables) keys of counted transitions.
+        :return: (n, n_tables) float32.
+        """
+        counts = np.stack([table.lookup(keys[:, i]) for i, table in enumerate(self.tables)], axis=1)
+        if np.any(counts == 0):
+            raise RuntimeError(
+                "MACB: a sampled transition's hash code is not in the count table. The replay buffer and the count "
+                "table do not belong together (was the buffer loaded from a different model or MACB setting?)"
+            )
+        return (self.beta / np.sqrt(counts)).astype(np.float32)
+
+    # --- statistics (the paper's Table 1 column) ---------------------------------------------------------------
+
+    @property
+    def num_codes(self) -> int:
+        """Distinct codes in the table (summed over agents' tables for ``scope="local"``)."""
+        return sum(t.num_codes for t in self.tables)
+
+    @property
+    def total_count(self) -> int:
+        """Transitions counted."""
+        return self.tables[0].total_count if self.tables else 0
+
+    @property
+    def count1_fraction(self) -> float:
+        """Share of the distinct codes seen exactly once (over all tables for ``scope="local"``)."""
+        codes = self.num_codes
+        return sum(t.num_count1 for t in self.tables) / codes if codes else 0.0
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the count tables."""
+        return sum(t.nbytes for t in self.tables)
+
+    # --- saving: settings are pickled with the model, the matrices and tables go to its torch variables ---------
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["hashes"], state["tables"] = [], []
+        return state
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The settings, as plain values (what ``MACB(**config)`` takes)."""
+        return {"beta": self.beta, "k": self.k, "scope": self.scope, "seed": self.seed, "decimals": self.decimals}
+
+    def state_dict(self) -> dict[str, th.Tensor]:
+        """The hash matrices and count tables as tensors (saved in the model's zip file, as SB3 saves modules)."""
+        self._require_setup()
+        tensors: dict[str, th.Tensor] = {}
+        for i, (h, table) in enumerate(zip(self.hashes, self.tables)):
+            state = table.state()
+            tensors[f"matrix_{i}"] = th.from_numpy(h.matrix_t.copy())
+            tensors[f"keys_{i}"] = th.from_numpy(state["keys"].view(np.int64).copy())
+            tensors[f"counts_{i}"] = th.from_numpy(state["counts"].astype(np.int64))
+            tensors[f"total_{i}"] = th.tensor(table.total_count, dtype=th.int64)
+        return tensors
+
+    def load_state_dict(self, state: dict[str, th.Tensor], strict: bool = True) -> None:
+        """
+        Restore what :meth:`state_dict` returned (after :meth:`setup`).
+
+        :param state: The saved tensors.
+        :param strict: Unused (the state must always match the MACB settings); kept for SB3's loader.
+        """
+        self._require_setup()
+        expected = {f"{name}_{i}" for i in range(self.n_tables) for name in ("matrix", "keys", "counts", "total")}
+        if set(state) != expected:
+            raise ValueError(f"MACB: the saved count state does not match {self} (tables: {self.n_tables})")
+        for i, h in enumerate(self.hashes):
+            matrix = state[f"matrix_{i}"].cpu().numpy()
+            if matrix.shape != h.matrix_t.shape:
+                raise ValueError(f"MACB: saved hash matrix has shape {matrix.shape}, expected {h.matrix_t.shape}")
+            h.matrix_t = matrix.astype(np.float32)
+            keys = state[f"keys_{i}"].cpu().numpy().view(np.uint64)
+            table = CountTable.from_state(keys, state[f"counts_{i}"].cpu().numpy())
+            table.total_count = int(state[f"total_{i}"])
+            self.tables[i] = table
