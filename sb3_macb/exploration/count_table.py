@@ -5,7 +5,6 @@ import numpy as np
 _EMPTY = np.uint64(0)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 def mix64(x: np.ndarray) -> np.ndarray:
@@ -32,7 +31,8 @@ def fold_words(words: np.ndarray) -> np.ndarray:
     n_words = words.shape[1]
     key = mix64(words[:, 0])
     for j in range(1, n_words):
-        key = mix64(key ^ (words[:, j] + _GOLDEN * np.uint64(j)))
+        offset = np.uint64((0x9E3779B97F4A7C15 * j) % (1 << 64))
+        key = mix64(key ^ (words[:, j] + offset))
     key[key == _EMPTY] = np.uint64(1)
     return key
 
@@ -48,7 +48,7 @@ class CountTable:
 
     max_load = 0.75
 
-    def __init__(self, capacity: int = 1024):
+    def __init__(self, capacity: int = 64):
         capacity = 1 << max(4, int(np.ceil(np.log2(max(capacity, 16)))))
         self.keys = np.zeros(capacity, dtype=np.uint64)
         self.counts = np.zeros(capacity, dtype=np.uint32)

@@ -1,0 +1,249 @@
+from collections import Counter
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.noise import NormalActionNoise
+from toy_envs import Rendezvous
+
+from sb3_macb import MACB, MADDPG, MACBReplayBuffer, MultiAgentReplayBuffer, make_joint_env
+from sb3_macb.exploration import CountTable, SimHash
+
+SMALL = dict(net_arch=[32, 32])
+
+
+def make_model(exploration, env=None, **kwargs):
+    kwargs = {"learning_starts": 10, "batch_size": 8, "seed": 0, "policy_kwargs": SMALL, **kwargs}
+    noise = NormalActionNoise(np.zeros(3), 0.1 * np.ones(3))
+    return MADDPG("MlpPolicy", env or Rendezvous(), exploration=exploration, action_noise=noise, **kwargs)
+
+
+def add(buffer, obs, action, agent_rewards):
+    obs = np.asarray(obs, dtype=np.float32)[None]
+    action = np.asarray(action, dtype=np.float32)[None]
+    agent_rewards = np.asarray(agent_rewards, dtype=np.float32)
+    buffer.add(obs, obs, action, np.array([agent_rewards.sum()]), np.array([0.0]), [{"agent_rewards": agent_rewards}])
+
+
+# --- count table ------------------------------------------------------------------------------------------------
+
+
+def test_count_table_matches_a_counter_through_growth():
+    rng = np.random.default_rng(0)
+    table = CountTable(capacity=16)
+    reference: Counter = Counter()
+    for _ in range(200):
+        keys = rng.integers(1, 3000, size=rng.integers(1, 40)).astype(np.uint64)  # repeats within and across batches
+        table.add(keys)
+        reference.update(keys.tolist())
+    assert table.num_codes == len(reference)
+    assert table.total_count == sum(reference.values())
+    assert table.num_count1 == sum(1 for v in reference.values() if v == 1)
+    probe = np.array(list(reference)[:500] + [999_999], dtype=np.uint64)
+    np.testing.assert_array_equal(table.lookup(probe), [reference[int(k)] for k in probe])
+    assert table.capacity >= table.num_codes / CountTable.max_load
+    assert table.nbytes / table.num_codes <= 32
+
+
+def test_count_table_state_roundtrip():
+    table = CountTable()
+    table.add(np.array([5, 5, 9, 11, 11, 11], dtype=np.uint64))
+    copy = CountTable.from_state(**table.state())
+    np.testing.assert_array_equal(copy.lookup(np.array([5, 9, 11, 7], dtype=np.uint64)), [2, 1, 3, 0])
+    assert (copy.num_codes, copy.total_count, copy.num_count1) == (3, 6, 1)
+
+
+def test_simhash_groups_by_angle_and_is_seeded():
+    h1 = SimHash(64, 4, np.random.default_rng(3), decimals=None)
+    h2 = SimHash(64, 4, np.random.default_rng(3), decimals=None)
+    v = np.random.default_rng(0).normal(size=(50, 4)).astype(np.float32)
+    np.testing.assert_array_equal(h1.keys(v), h2.keys(v))
+    np.testing.assert_array_equal(h1.keys(v), h1.keys(2.5 * v))  # sign(A v) is invariant to scaling
+    assert len(np.unique(h1.keys(v))) == 50
+    h_short = SimHash(1, 4, np.random.default_rng(3), decimals=None)
+    assert len(np.unique(h_short.keys(v))) == 2  # one bit: two codes
+
+
+# --- MACB settings ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(k=0), "k"),
+        (dict(k=2.5), "k"),
+        (dict(beta=-0.1), "beta"),
+        (dict(beta="x"), "beta"),
+        (dict(scope="global"), "unknown scope"),
+        (dict(decimals=-1), "decimals"),
+    ],
+)
+def test_bad_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        MACB(**kwargs)
+
+
+def test_from_dict():
+    model = make_model({"beta": 0.4, "k": 16, "scope": "local"})
+    assert isinstance(model.exploration, MACB)
+    assert (model.exploration.beta, model.exploration.k, model.exploration.scope) == (0.4, 16, "local")
+    with pytest.raises(ValueError, match=r"Unknown MACB option\(s\) \['bta'\]"):
+        make_model({"bta": 0.4})
+    with pytest.raises(TypeError, match="exploration must be"):
+        make_model(0.8)
+
+
+# --- buffer and bonus -----------------------------------------------------------------------------------------------
+
+
+def test_exact_bonus_values_and_sampling_changes_nothing():
+    model = make_model(MACB(beta=0.5, k=32, decimals=None), learning_starts=10_000)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, MACBReplayBuffer)
+    t1 = ([0.1, 0.2, 0.5], [0.3, -0.2, 0.1], [-1.0, -2.0])
+    t2 = ([-0.7, 0.4, 0.5], [-0.9, 0.4, 0.2], [0.0, 0.0])
+    add(buffer, *t1)
+    add(buffer, *t1)
+    add(buffer, *t1)
+    add(buffer, *t2)
+    exploration = model.exploration
+    assert exploration.total_count == 4 and exploration.num_codes == 2
+    assert exploration.count1_fraction == pytest.approx(0.5)
+
+    rewards_before = buffer.agent_rewards.copy()
+    counts_before = exploration.tables[0].counts.copy()
+    samples = buffer._get_samples(np.array([0, 1, 2, 3, 3]))
+    expected = np.array(
+        [
+            [-1.0 + 0.5 / np.sqrt(3), -2.0 + 0.5 / np.sqrt(3)],
+            [-1.0 + 0.5 / np.sqrt(3), -2.0 + 0.5 / np.sqrt(3)],
+            [-1.0 + 0.5 / np.sqrt(3), -2.0 + 0.5 / np.sqrt(3)],
+            [0.5, 0.5],
+            [0.5, 0.5],
+        ]
+    )
+    np.testing.assert_allclose(samples.rewards.numpy(), expected, rtol=1e-6)
+    for _ in range(5):
+        buffer.sample(4)
+    np.testing.assert_array_equal(buffer.agent_rewards, rewards_before)  # the bonus is never stored
+    np.testing.assert_array_equal(exploration.tables[0].counts, counts_before)  # sampling counts nothing
+    assert exploration.total_count == 4
+
+
+def test_bonus_uses_current_counts():
+    model = make_model(MACB(beta=1.0, k=32, decimals=None), learning_starts=10_000)
+    t = ([0.1, 0.2, 0.5], [0.3, -0.2, 0.1], [0.0, 0.0])
+    add(model.replay_buffer, *t)
+    assert model.replay_buffer._get_samples(np.array([0])).rewards[0, 0].item() == pytest.approx(1.0)
+    for _ in range(3):
+        add(model.replay_buffer, *t)
+    assert model.replay_buffer._get_samples(np.array([0])).rewards[0, 0].item() == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("scope, n_tables", [("joint", 1), ("state", 1), ("local", 2)])
+def test_scopes(scope, n_tables):
+    model = make_model(MACB(beta=1.0, k=32, scope=scope, decimals=None), learning_starts=10_000)
+    exploration = model.exploration
+    assert exploration.n_tables == n_tables
+    # same observation, different actions: joint counts two codes, state one
+    add(model.replay_buffer, [0.1, 0.2, 0.5], [0.3, -0.2, 0.1], [0.0, 0.0])
+    add(model.replay_buffer, [0.1, 0.2, 0.5], [-0.3, 0.2, -0.1], [0.0, 0.0])
+    # agent b alone changes: agent a's local code repeats
+    add(model.replay_buffer, [0.1, -0.9, 0.5], [0.3, 0.4, 0.4], [0.0, 0.0])
+    rewards = model.replay_buffer._get_samples(np.array([0, 1, 2])).rewards.numpy()
+    if scope == "joint":
+        assert exploration.num_codes == 3
+        np.testing.assert_allclose(rewards, 1.0)
+    elif scope == "state":
+        assert exploration.num_codes == 2
+        np.testing.assert_allclose(rewards[:, 0], [1 / np.sqrt(2), 1 / np.sqrt(2), 1.0], rtol=1e-6)
+        np.testing.assert_allclose(rewards[:, 0], rewards[:, 1])  # one bonus shared by all agents
+    else:
+        assert [t.num_codes for t in exploration.tables] == [2, 3]
+        # agent a's code (0.1, 0.3) was seen twice, at transitions 0 and 2: each agent gets its own bonus
+        np.testing.assert_allclose(rewards[:, 0], [1 / np.sqrt(2), 1.0, 1 / np.sqrt(2)], rtol=1e-6)
+        np.testing.assert_allclose(rewards[:, 1], 1.0)
+    assert exploration.total_count == 3
+
+
+def test_counts_equal_collected_transitions_n_envs_2():
+    env = make_vec_env(lambda: make_joint_env(Rendezvous()), n_envs=2, seed=0)
+    model = make_model(MACB(beta=0.8, k=64), env=env)
+    model.learn(60)
+    assert model.exploration.total_count == 60
+    keys = model.replay_buffer.hash_keys[:30].reshape(-1)
+    assert model.exploration.num_codes == len(np.unique(keys))
+
+
+def test_exploration_none_uses_plain_buffer():
+    model = make_model(None)
+    assert type(model.replay_buffer) is MultiAgentReplayBuffer and model.exploration is None
+
+
+def test_bonus_changes_training_targets():
+    """Same seed, same data: the bonus alone moves the critics (it reaches the critic target)."""
+    plain = make_model(None)  # (each model seeds the global RNG, used by the action noise, when built)
+    plain.learn(40)
+    macb = make_model(MACB(beta=5.0, k=16))
+    macb.learn(40)
+    # identical warm-up data (learning starts at 10), after which the bonus changes the learned policy
+    np.testing.assert_array_equal(plain.replay_buffer.observations[:11], macb.replay_buffer.observations[:11])
+    q_plain = plain.critic(th.zeros(1, 3), th.zeros(1, 3))
+    q_macb = macb.critic(th.zeros(1, 3), th.zeros(1, 3))
+    assert (q_macb - q_plain).abs().max() > 1e-3
+
+
+def test_logged_statistics(tmp_path):
+    import pandas as pd
+    from stable_baselines3.common.logger import configure
+
+    model = make_model(MACB(beta=0.8, k=64))
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(60, log_interval=1)  # Rendezvous episodes last 10 steps: 6 log dumps
+    log = pd.read_csv(tmp_path / "progress.csv")
+    assert {"exploration/num_codes", "exploration/count1_percent", "exploration/mean_bonus"} <= set(log.columns)
+    assert log["exploration/num_codes"].iloc[-1] == model.exploration.num_codes
+    assert log["exploration/count1_percent"].iloc[-1] == pytest.approx(100 * model.exploration.count1_fraction)
+    bonus = log["exploration/mean_bonus"].dropna()
+    assert len(bonus) > 0 and ((bonus > 0) & (bonus <= 0.8 + 1e-6)).all()
+
+
+def test_seed_gives_same_matrix():
+    a, b, c = make_model(MACB(k=16, seed=7)), make_model(MACB(k=16, seed=7)), make_model(MACB(k=16, seed=8))
+    np.testing.assert_array_equal(a.exploration.hashes[0].matrix_t, b.exploration.hashes[0].matrix_t)
+    assert not np.array_equal(a.exploration.hashes[0].matrix_t, c.exploration.hashes[0].matrix_t)
+    d = make_model(MACB(k=16), seed=3)  # no MACB seed: the model's seed is used
+    assert d.exploration.seed == 3
+
+
+def test_save_load_continue(tmp_path):
+    model = make_model(MACB(beta=0.8, k=64, scope="local"))
+    model.learn(50)
+    codes, total = model.exploration.num_codes, model.exploration.total_count
+    matrix = model.exploration.hashes[1].matrix_t.copy()
+    model.save(tmp_path / "m.zip")
+    model.save_replay_buffer(tmp_path / "rb.pkl")
+
+    loaded = MADDPG.load(tmp_path / "m.zip", env=make_joint_env(Rendezvous()))
+    assert loaded.exploration.config == model.exploration.config
+    assert (loaded.exploration.num_codes, loaded.exploration.total_count) == (codes, total)
+    assert loaded.exploration.count1_fraction == pytest.approx(model.exploration.count1_fraction)
+    np.testing.assert_array_equal(loaded.exploration.hashes[1].matrix_t, matrix)
+    loaded.load_replay_buffer(tmp_path / "rb.pkl")
+    assert loaded.replay_buffer.exploration is loaded.exploration
+    loaded.learn(20, reset_num_timesteps=False)
+    assert loaded.exploration.total_count == total + 20
+
+    plain = make_model(None)
+    with pytest.raises(ValueError, match="saved by a model using MACB"):
+        plain.load_replay_buffer(tmp_path / "rb.pkl")
+
+
+def test_memory_per_code_and_table_size():
+    model = make_model(MACB(beta=0.8, k=512))
+    model.learn(300)
+    e = model.exploration
+    assert e.total_count == 300
+    assert 0 < e.num_codes <= 300
+    assert e.nbytes / e.num_codes <= 32  # 12 bytes per slot, at most 3/4 and at least 3/8 of the slots used

@@ -1,0 +1,247 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from mpe2 import simple_speaker_listener_v4
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from toy_envs import Rendezvous
+
+from sb3_macb import MADDPG, MultiAgentReplayBuffer, make_joint_env
+from sb3_macb.common.grouped_mlp import GroupedMLP, onednn_available
+
+SMALL = dict(net_arch=[32, 32])
+
+
+def speaker_listener(max_cycles: int = 20):
+    return simple_speaker_listener_v4.parallel_env(continuous_actions=True, max_cycles=max_cycles)
+
+
+def noise(dim: int = 3, sigma: float = 0.1) -> NormalActionNoise:
+    return NormalActionNoise(np.zeros(dim), sigma * np.ones(dim))
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(),
+        dict(centralized_critic=False),
+        dict(policy_kwargs=dict(net_arch=[32, 32], n_critics=2), policy_delay=2, target_policy_noise=0.2),
+        dict(policy_kwargs=dict(net_arch=dict(pi=[16], qf=[32, 32]))),
+        dict(action_noise=OrnsteinUhlenbeckActionNoise(np.zeros(8), 0.1 * np.ones(8))),
+    ],
+)
+def test_runs_on_speaker_listener(kwargs):
+    kwargs = {"policy_kwargs": SMALL, **kwargs}
+    model = MADDPG("MlpPolicy", speaker_listener(5), learning_starts=20, batch_size=16, seed=0, **kwargs)
+    model.learn(60)
+    assert model.num_timesteps == 60
+    assert model._n_updates > 0
+    obs = model.env.reset()
+    action, _ = model.predict(obs, deterministic=True)
+    assert action.shape == (1, 8)
+    assert model.env.action_space.contains(action[0])
+
+
+def test_n_envs_2():
+    env = make_vec_env(lambda: make_joint_env(Rendezvous()), n_envs=2, seed=0)
+    model = MADDPG("MlpPolicy", env, learning_starts=10, batch_size=8, policy_kwargs=SMALL, action_noise=noise(), seed=0)
+    model.learn(40)
+    assert model.num_timesteps == 40
+    assert model.replay_buffer.agent_rewards.shape[1:] == (2, 2)
+    assert model.replay_buffer.pos == 20
+
+
+def test_policy_shapes_and_independence():
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0, centralized_critic=False)
+    critic = model.critic
+    obs = th.randn(5, 3, requires_grad=True)
+    act = th.randn(5, 3, requires_grad=True)
+    q = critic(obs, act)
+    assert q.shape == (1, 2, 5)
+    q[0, 0].sum().backward()  # agent a's independent critic reads only agent a's observation and action
+    assert obs.grad[:, 1:].abs().sum() == 0 and act.grad[:, 1:].abs().sum() == 0
+    assert obs.grad[:, 0].abs().sum() > 0
+
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0)
+    obs = th.randn(5, 3, requires_grad=True)
+    model.critic(obs, th.randn(5, 3))[0, 0].sum().backward()  # centralized: sees everything
+    assert (obs.grad.abs().sum(dim=0) > 0).all()
+    obs = th.randn(5, 3, requires_grad=True)
+    model.actor(obs)[:, 0].sum().backward()  # agent a's actor reads only its own observation
+    assert obs.grad[:, 1:].abs().sum() == 0
+
+
+def test_masked_weights_stay_zero_after_training():
+    model = MADDPG(
+        "MlpPolicy", Rendezvous(), policy_kwargs=SMALL, learning_starts=10, batch_size=8, action_noise=noise(), seed=0
+    )
+    model.learn(60)
+    first = model.actor.mu.weights[0].detach()  # (agents, hidden, obs_dim)
+    assert first[0, :, 1:].abs().sum() == 0 and first[1, :, :1].abs().sum() == 0
+    last = model.actor.mu.weights[-1].detach()  # (agents, action_dim, hidden)
+    assert last[0, 1:].abs().sum() == 0 and last[1, :1].abs().sum() == 0
+    assert first[0, :, 0].abs().sum() > 0
+
+
+@pytest.mark.skipif(not onednn_available(), reason="this PyTorch build has no oneDNN")
+def test_onednn_and_bmm_paths_agree():
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=[128, 96]), seed=0)
+    obs, act = th.randn(7, 3), th.randn(7, 3)
+    results = []
+    for use in (True, False):
+        GroupedMLP.use_onednn = use
+        try:
+            model.policy.zero_grad()
+            q = model.critic(obs, act)
+            pi = model.actor(obs)
+            (q.square().sum() + pi.square().sum()).backward()
+            grads = [p.grad.clone() for p in model.policy.parameters() if p.grad is not None]
+            results.append([q.detach(), pi.detach(), *grads])
+        finally:
+            GroupedMLP.use_onednn = True
+    assert len(results[0]) > 2
+    for a, b in zip(*results):
+        th.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_per_agent_rewards_in_buffer():
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, learning_starts=1000, seed=0)
+    model.learn(20)
+    buf = model.replay_buffer
+    assert isinstance(buf, MultiAgentReplayBuffer)
+    np.testing.assert_allclose(buf.agent_rewards[:20, 0].sum(axis=1), buf.rewards[:20, 0], rtol=1e-5)
+    assert buf.sample(4).rewards.shape == (4, 2)
+
+
+def test_time_limit_bootstraps():
+    model = MADDPG("MlpPolicy", Rendezvous(max_steps=5), policy_kwargs=SMALL, learning_starts=1000, seed=0)
+    model.learn(10)
+    buf = model.replay_buffer
+    assert buf.dones[:10, 0].sum() == 2 and buf.timeouts[:10, 0].sum() == 2
+    samples = buf._get_samples(np.arange(10))
+    assert samples.dones.sum() == 0  # truncation is not termination
+
+
+def test_save_load(tmp_path):
+    env = make_joint_env(Rendezvous())
+    model = MADDPG("MlpPolicy", env, policy_kwargs=SMALL, learning_starts=10, batch_size=8, action_noise=noise(), seed=0)
+    model.learn(50)
+    obs = np.stack([env.observation_space.sample() for _ in range(6)])
+    expected, _ = model.predict(obs, deterministic=True)
+    model.save(tmp_path / "maddpg.zip")
+    model.save_replay_buffer(tmp_path / "buffer.pkl")
+
+    loaded = MADDPG.load(tmp_path / "maddpg.zip")  # no env needed
+    assert loaded.agent_layout == env.agent_layout
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], expected, rtol=1e-6)
+    for p1, p2 in zip(model.policy.parameters(), loaded.policy.parameters()):
+        th.testing.assert_close(p1, p2)
+
+    loaded = MADDPG.load(tmp_path / "maddpg.zip", env=make_joint_env(Rendezvous()))
+    loaded.load_replay_buffer(tmp_path / "buffer.pkl")
+    assert loaded.replay_buffer.size() == model.replay_buffer.size()
+    np.testing.assert_array_equal(loaded.replay_buffer.agent_rewards, model.replay_buffer.agent_rewards)
+    updates = loaded._n_updates
+    loaded.learn(20, reset_num_timesteps=False)  # continued learning
+    assert loaded.num_timesteps == 70 and loaded._n_updates == updates + 20
+    assert loaded.replay_buffer.size() == 70
+
+
+def test_load_with_mismatched_env(tmp_path):
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0)
+    model.save(tmp_path / "m.zip")
+    with pytest.raises(ValueError, match="spaces do not match"):
+        MADDPG.load(tmp_path / "m.zip", env=speaker_listener())
+
+    class Swapped(Rendezvous):  # same joint spaces, other agent split
+        def __init__(self):
+            super().__init__()
+            self.possible_agents = ["b", "a"]
+
+        def observation_space(self, agent):
+            return super().observation_space("a" if agent == "b" else "b")
+
+        def action_space(self, agent):
+            return super().action_space("a" if agent == "b" else "b")
+
+    swapped = make_joint_env(Swapped())
+    swapped.observation_space = make_joint_env(Rendezvous()).observation_space
+    swapped.action_space = make_joint_env(Rendezvous()).action_space
+    with pytest.raises(ValueError, match="agents do not match"):
+        MADDPG.load(tmp_path / "m.zip", env=swapped)
+
+
+def test_determinism():
+    def run(seed):
+        model = MADDPG(
+            "MlpPolicy", Rendezvous(), policy_kwargs=SMALL, learning_starts=10, batch_size=8, action_noise=noise(), seed=seed
+        )
+        model.learn(40)
+        return [p.detach().clone() for p in model.policy.parameters()], model.replay_buffer.rewards[:40].copy()
+
+    params1, rewards1 = run(1)
+    params2, rewards2 = run(1)
+    params3, _ = run(2)
+    np.testing.assert_array_equal(rewards1, rewards2)
+    for p1, p2 in zip(params1, params2):
+        th.testing.assert_close(p1, p2, rtol=0, atol=0)
+    assert any(not th.equal(p1, p3) for p1, p3 in zip(params1, params3))
+
+
+def test_initial_agents_differ():
+    # the paper's code re-seeded the RNG per agent, so same-shaped agents started identical
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0)
+    w = model.critic.q_net.weights[1]
+    assert not th.equal(w[0], w[1])
+
+
+def test_bad_inputs():
+    with pytest.raises(TypeError, match="multi-agent env"):
+        MADDPG("MlpPolicy", gym.make("Pendulum-v1"))
+    with pytest.raises(TypeError, match="Discrete action space"):
+        MADDPG("MlpPolicy", Rendezvous(discrete=True))
+    with pytest.raises(ValueError, match="centralized_critic to MADDPG itself"):
+        MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(centralized_critic=False))
+    with pytest.raises(ValueError, match="'pi' and 'qf'"):
+        MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=dict(pi=[8])))
+    with pytest.raises(ValueError, match="n_critics"):
+        MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(n_critics=0))
+    model = MADDPG("MlpPolicy", Rendezvous(nan_obs_step=3), policy_kwargs=SMALL, seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        model.learn(10)
+
+
+def test_env_id_and_monitor_wrapped_env():
+    env = Monitor(make_joint_env(Rendezvous()))
+    model = MADDPG("MlpPolicy", env, policy_kwargs=SMALL, seed=0)
+    assert model.agent_layout.agents == ("a", "b")
+
+
+def test_learns_easy_cooperative_task():
+    """MADDPG clearly beats a random policy on a small cooperative task within a small budget."""
+    env = make_joint_env(Rendezvous())
+    model = MADDPG(
+        "MlpPolicy",
+        env,
+        learning_starts=200,
+        batch_size=64,
+        policy_kwargs=dict(net_arch=[64, 64]),
+        action_noise=noise(sigma=0.2),
+        seed=0,
+    )
+    eval_env = Monitor(make_joint_env(Rendezvous()))
+    eval_env.reset(seed=123)
+    rng = np.random.default_rng(0)
+
+    class RandomPolicy:
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return rng.uniform(env.action_space.low, env.action_space.high, (1, 3)).astype(np.float32), None
+
+    random_return, _ = evaluate_policy(RandomPolicy(), eval_env, n_eval_episodes=20)
+    model.learn(1500)
+    trained_return, _ = evaluate_policy(model, eval_env, n_eval_episodes=20)
+    assert trained_return > random_return / 3, (random_return, trained_return)
+    assert trained_return > -3.0
