@@ -5,6 +5,7 @@ import numpy as np
 _EMPTY = np.uint64(0)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 def mix64(x: np.ndarray) -> np.ndarray:
@@ -22,17 +23,17 @@ def fold_words(words: np.ndarray) -> np.ndarray:
     """
     One well-mixed non-zero 64-bit key per row of 64-bit words (a hash code of up to ``64 * n_words`` bits).
 
-    Codes of at most 64 bits map to distinct keys (the mixing is a bijection); longer codes are combined by a
-    position-dependent mixing, where two distinct codes share a key with probability about 2^-64.
+    Codes of one word map to distinct keys (the mixing is a bijection); longer codes mix each word with its
+    position and combine them, so that two distinct codes share a key with probability about 2^-64.
 
     :param words: (n, n_words) uint64.
     :return: (n,) uint64, never 0 (0 marks an empty slot).
     """
-    n_words = words.shape[1]
-    key = mix64(words[:, 0])
-    for j in range(1, n_words):
-        offset = np.uint64((0x9E3779B97F4A7C15 * j) % (1 << 64))
-        key = mix64(key ^ (words[:, j] + offset))
+    if words.shape[1] == 1:
+        key = mix64(words[:, 0])
+    else:
+        offsets = (np.arange(words.shape[1], dtype=np.uint64) * _GOLDEN)[None, :]
+        key = mix64(np.bitwise_xor.reduce(mix64(words + offsets), axis=1))
     key[key == _EMPTY] = np.uint64(1)
     return key
 
@@ -126,10 +127,8 @@ class CountTable:
     def lookup(self, keys: np.ndarray) -> np.ndarray:
         """Counts of ``keys`` (0 for a key never counted)."""
         keys = np.asarray(keys, dtype=np.uint64).ravel()
-        unique, inverse = np.unique(keys, return_inverse=True)
-        slots = self._probe(unique, insert=False)
-        counts = np.where(slots >= 0, self.counts[np.maximum(slots, 0)], 0)
-        return counts[inverse.ravel()]
+        slots = self._probe(keys, insert=False)  # (repeated keys are fine when nothing is inserted)
+        return np.where(slots >= 0, self.counts[np.maximum(slots, 0)], 0)
 
     def state(self) -> dict[str, np.ndarray]:
         """The occupied entries, compactly (for saving)."""
