@@ -22,7 +22,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 
-from sb3_macb import MADDPG, make_joint_env
+from sb3_macb import MACB, MADDPG, make_joint_env
 
 
 def speaker_listener() -> gym.Env:

@@ -68,7 +68,9 @@ class JointEnv(gym.Env):
 
     - observation: every agent's observation flattened and concatenated, in ``possible_agents`` order;
     - action: every agent's action concatenated, each agent keeping its own bounds;
-    - reward: the sum of the agents' rewards; the per-agent rewards are in ``info["agent_rewards"]``
+    - reward: the sum of the agents' rewards (or their mean, with ``team_reward="mean"``: for tasks where every
+      agent receives the same shared reward, the mean is that reward, not N times it); the per-agent rewards are in
+      ``info["agent_rewards"]``
       (a float32 array in agent order), and each agent's own info dict in ``info["agent_infos"]``;
     - ``terminated`` and ``truncated`` are kept apart, so that time-limit ends bootstrap;
     - ``info["is_success"]`` is passed on where the agents' infos carry one (true when every agent that reports
@@ -79,12 +81,16 @@ class JointEnv(gym.Env):
 
     :param env: PettingZoo ``ParallelEnv`` (an ``AECEnv`` is converted with ``aec_to_parallel``).
     :param check_finite: Raise an error when an observation or a reward is NaN or infinite.
+    :param team_reward: How the scalar reward combines the agents' rewards: ``"sum"`` or ``"mean"``.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
 
-    def __init__(self, env: ParallelEnv | AECEnv, check_finite: bool = True):
+    def __init__(self, env: ParallelEnv | AECEnv, check_finite: bool = True, team_reward: str = "sum"):
         super().__init__()
+        if team_reward not in ("sum", "mean"):
+            raise ValueError(f"team_reward must be 'sum' or 'mean', got {team_reward!r}")
+        self.team_reward = team_reward
         if isinstance(env, AECEnv):
             from pettingzoo.utils.conversions import aec_to_parallel
 
@@ -192,7 +198,8 @@ class JointEnv(gym.Env):
         successes = [infos[agent]["is_success"] for agent in agents if isinstance(infos.get(agent), dict) and "is_success" in infos[agent]]
         if successes:
             info["is_success"] = bool(all(successes))
-        return obs, float(agent_rewards.sum()), terminated, truncated, info
+        reward = float(agent_rewards.sum() if self.team_reward == "sum" else agent_rewards.mean())
+        return obs, reward, terminated, truncated, info
 
     def render(self) -> Any:
         return self.par_env.render()
@@ -201,12 +208,13 @@ class JointEnv(gym.Env):
         self.par_env.close()
 
 
-def make_joint_env(env: ParallelEnv | AECEnv, check_finite: bool = True) -> JointEnv:
+def make_joint_env(env: ParallelEnv | AECEnv, check_finite: bool = True, team_reward: str = "sum") -> JointEnv:
     """
     Turn a PettingZoo environment into a single gymnasium environment usable by SB3 and MADDPG.
 
     :param env: PettingZoo ``ParallelEnv`` or ``AECEnv`` with ``Box`` action and observation spaces.
     :param check_finite: Raise an error when an observation or a reward is NaN or infinite.
+    :param team_reward: The scalar reward: ``"sum"`` of the agents' rewards, or their ``"mean"`` (for a shared reward).
     :return: The joint environment (see :class:`JointEnv`).
     """
-    return JointEnv(env, check_finite=check_finite)
+    return JointEnv(env, check_finite=check_finite, team_reward=team_reward)

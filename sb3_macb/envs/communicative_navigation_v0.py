@@ -1,0 +1,43 @@
+"""
+Communicative Navigation, the paper's partially observed task, in mpe2's style.
+
+    from sb3_macb.envs import communicative_navigation_v0
+    env = communicative_navigation_v0.parallel_env(reward="sparse")
+
+A static speaker (``speaker_0``, observation 3: the goal's colour; action 3: a message in [0, 1]) guides a silent
+listener (``listener_0``, observation 11: velocity, the three landmarks relative to it, the message; action: a
+2-D force command in [-1, 1]) to the goal landmark.
+"""
+
+from typing import Any
+
+from pettingzoo.utils.conversions import parallel_wrapper_fn
+
+from sb3_macb.envs.tasks import CommunicativeNavigationScenario, make_aec_env
+
+NAME = "communicative_navigation_v0"
+
+
+def env(
+    max_cycles: int = 20,
+    reward: str = "sparse",
+    reward_radius: float = 0.15,
+    success_radius: float = 0.15,
+    terminate_on_success: bool = False,
+    render_mode: str | None = None,
+) -> Any:
+    """
+    :param max_cycles: Steps per episode.
+    :param reward: ``"sparse"`` (0 within ``reward_radius`` of the goal, else -1) or ``"distance"`` (minus the
+        squared distance to the goal).
+    :param reward_radius: Radius of the sparse reward.
+    :param success_radius: The episode succeeds when the listener comes within this distance of the goal.
+    :param terminate_on_success: End the episode on success (the paper's episodes run on).
+    :param render_mode: None, ``"rgb_array"`` or ``"human"``.
+    :return: The AEC environment.
+    """
+    scenario = CommunicativeNavigationScenario(reward, reward_radius, success_radius, terminate_on_success)
+    return make_aec_env(scenario, max_cycles, render_mode, NAME)
+
+
+parallel_env = parallel_wrapper_fn(env)

@@ -1,0 +1,288 @@
+"""
+The paper's two tasks, built on mpe2's particle world (its physics, seeding and rendering are reused):
+
+- 2-Agent Navigation: two agents must cover two landmarks (sparse reward, collisions penalised);
+- Communicative Navigation: a static speaker tells a listener which of three landmarks to reach.
+
+Actions are continuous: movement is a 2-D force command in [-1, 1] (force = 5 * action), communication a 3-D
+vector in [0, 1]. Every agent's info carries, per step, ``success`` (the success condition holds now),
+``is_success`` (it has held at some step of the episode; so at the episode's end it is the episode's success)
+and, for navigation, ``collisions`` (agent pairs overlapping now) and ``episode_collisions``.
+"""
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+from mpe2._mpe_utils.core import Agent, Landmark, World
+from mpe2._mpe_utils.scenario import BaseScenario
+from mpe2._mpe_utils.simple_env import SimpleEnv
+from pettingzoo.utils import wrappers
+
+FORCE_SCALE = 5.0  # MPE's default sensitivity: force = 5 * u
+
+
+class TaskScenario(BaseScenario):
+    """A scenario with one shared reward and per-step success and collision statistics."""
+
+    def __init__(self, terminate_on_success: bool = False):
+        self.terminate_on_success = terminate_on_success
+
+    def shared_reward(self, world: World) -> float:
+        raise NotImplementedError
+
+    def success(self, world: World) -> bool:
+        raise NotImplementedError
+
+    def collisions(self, world: World) -> int:
+        """Number of agent pairs overlapping now."""
+        return 0
+
+    def reward(self, agent: Agent, world: World) -> float:
+        return self.shared_reward(world)
+
+    def is_terminal(self, world: World) -> bool:
+        return self.terminate_on_success and self.success(world)
+
+
+def _overlapping_pairs(agents: list[Agent]) -> int:
+    count = 0
+    for i, a in enumerate(agents):
+        for b in agents[i + 1 :]:
+            if np.linalg.norm(a.state.p_pos - b.state.p_pos) < a.size + b.size:
+                count += 1
+    return count
+
+
+class TwoAgentNavigationScenario(TaskScenario):
+    """
+    Two agents, two landmarks, all of size 0.125. Shared reward: each landmark whose nearest agent is farther than
+    ``reward_radius`` costs -1 and each colliding agent costs -1 (with ``collision_penalty``), the sum divided
+    by 2 and by the number of agents, and every agent receives the sum over agents: range [-1.5, 0]. Success:
+    every landmark has an agent within ``success_radius``.
+    """
+
+    n_agents = 2
+    n_landmarks = 2
+    size = 0.125
+
+    def __init__(
+        self,
+        reward_radius: float = 0.125,
+        success_radius: float = 0.25,
+        collision_penalty: bool = True,
+        terminate_on_success: bool = False,
+    ):
+        super().__init__(terminate_on_success)
+        self.reward_radius = reward_radius
+        self.success_radius = success_radius
+        self.collision_penalty = collision_penalty
+
+    def make_world(self) -> World:
+        world = World()
+        world.dim_c = 2
+        world.collaborative = True
+        world.agents = [Agent() for _ in range(self.n_agents)]
+        for i, agent in enumerate(world.agents):
+            agent.name = f"agent_{i}"
+            agent.collide = True
+            agent.silent = True
+            agent.size = self.size
+        world.landmarks = [Landmark() for _ in range(self.n_landmarks)]
+        for i, landmark in enumerate(world.landmarks):
+            landmark.name = f"landmark {i}"
+            landmark.collide = False
+            landmark.movable = False
+            landmark.size = self.size
+        return world
+
+    def reset_world(self, world: World, np_random: Any) -> None:
+        for agent in world.agents:
+            agent.color = np.array([0.35, 0.35, 0.85])
+            agent.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
+            agent.state.p_vel = np.zeros(world.dim_p)
+            agent.state.c = np.zeros(world.dim_c)
+        for landmark in world.landmarks:
+            landmark.color = np.array([0.25, 0.25, 0.25])
+            landmark.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
+            landmark.state.p_vel = np.zeros(world.dim_p)
+
+    def _nearest_distances(self, world: World) -> np.ndarray:
+        agents = np.array([a.state.p_pos for a in world.agents])
+        landmarks = np.array([lm.state.p_pos for lm in world.landmarks])
+        return np.linalg.norm(landmarks[:, None, :] - agents[None, :, :], axis=-1).min(axis=1)
+
+    def shared_reward(self, world: World) -> float:
+        n_agents = len(world.agents)
+        uncovered = int(np.sum(self._nearest_distances(world) > self.reward_radius))
+        # every agent pays for every uncovered landmark, and each agent in a collision pays for it
+        per_agent_total = n_agents * uncovered
+        if self.collision_penalty:
+            per_agent_total += 2 * _overlapping_pairs(world.agents)
+        return -per_agent_total / 2.0 / n_agents
+
+    def success(self, world: World) -> bool:
+        return bool(np.all(self._nearest_distances(world) <= self.success_radius))
+
+    def collisions(self, world: World) -> int:
+        return _overlapping_pairs(world.agents)
+
+    def observation(self, agent: Agent, world: World) -> np.ndarray:
+        landmarks = [lm.state.p_pos - agent.state.p_pos for lm in world.landmarks]
+        others = [other.state.p_pos - agent.state.p_pos for other in world.agents if other is not agent]
+        return np.concatenate([agent.state.p_vel, agent.state.p_pos, *landmarks, *others]).astype(np.float32)
+
+
+class CommunicativeNavigationScenario(TaskScenario):
+    """
+    A static speaker sees the goal landmark's colour and sends a 3-D message; a silent listener sees its velocity,
+    the three landmarks relative to it and the message, and must reach the goal. All entities have size 0.075 and
+    do not collide. Shared reward: ``"sparse"``: 0 within ``reward_radius`` of the goal, else -1; ``"distance"``:
+    minus the squared distance to the goal. Success: the listener within ``success_radius`` of the goal.
+    """
+
+    size = 0.075
+    colors = (np.array([0.65, 0.15, 0.15]), np.array([0.15, 0.65, 0.15]), np.array([0.15, 0.15, 0.65]))
+
+    def __init__(
+        self,
+        reward: str = "sparse",
+        reward_radius: float = 0.15,
+        success_radius: float = 0.15,
+        terminate_on_success: bool = False,
+    ):
+        super().__init__(terminate_on_success)
+        if reward not in ("sparse", "distance"):
+            raise ValueError(f"reward must be 'sparse' or 'distance', got {reward!r}")
+        self.reward_type = reward
+        self.reward_radius = reward_radius
+        self.success_radius = success_radius
+        self.goal: Landmark | None = None
+
+    def make_world(self) -> World:
+        world = World()
+        world.dim_c = 3
+        world.collaborative = True
+        world.agents = [Agent(), Agent()]
+        speaker, listener = world.agents
+        speaker.name, listener.name = "speaker_0", "listener_0"
+        speaker.movable = False
+        listener.silent = True
+        for agent in world.agents:
+            agent.collide = False
+            agent.size = self.size
+        world.landmarks = [Landmark() for _ in range(3)]
+        for i, landmark in enumerate(world.landmarks):
+            landmark.name = f"landmark {i}"
+            landmark.collide = False
+            landmark.movable = False
+            landmark.size = self.size
+        return world
+
+    def reset_world(self, world: World, np_random: Any) -> None:
+        self.goal = world.landmarks[int(np_random.integers(len(world.landmarks)))]
+        for landmark, color in zip(world.landmarks, self.colors):
+            landmark.color = color
+        for agent in world.agents:
+            agent.color = np.array([0.25, 0.25, 0.25])
+        world.agents[1].color = self.goal.color + 0.45
+        for agent in world.agents:
+            agent.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
+            agent.state.p_vel = np.zeros(world.dim_p)
+            agent.state.c = np.zeros(world.dim_c)
+        for landmark in world.landmarks:
+            landmark.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
+            landmark.state.p_vel = np.zeros(world.dim_p)
+
+    def _goal_distance(self, world: World) -> float:
+        assert self.goal is not None
+        return float(np.linalg.norm(world.agents[1].state.p_pos - self.goal.state.p_pos))
+
+    def shared_reward(self, world: World) -> float:
+        distance = self._goal_distance(world)
+        if self.reward_type == "sparse":
+            return 0.0 if distance <= self.reward_radius else -1.0
+        return -(distance**2)
+
+    def success(self, world: World) -> bool:
+        return self._goal_distance(world) <= self.success_radius
+
+    def observation(self, agent: Agent, world: World) -> np.ndarray:
+        speaker, listener = world.agents
+        if agent is speaker:
+            assert self.goal is not None
+            return self.goal.color.astype(np.float32)
+        landmarks = [lm.state.p_pos - listener.state.p_pos for lm in world.landmarks]
+        return np.concatenate([listener.state.p_vel, *landmarks, speaker.state.c]).astype(np.float32)
+
+
+class TaskEnv(SimpleEnv, EzPickle):
+    """
+    mpe2's ``SimpleEnv`` with the paper's continuous action spaces and per-step success and collision infos.
+
+    :param scenario: The task's scenario.
+    :param max_cycles: Steps per episode.
+    :param render_mode: None, ``"rgb_array"`` or ``"human"``.
+    :param name: The environment's name in ``metadata``.
+    """
+
+    def __init__(self, scenario: TaskScenario, max_cycles: int = 20, render_mode: str | None = None, name: str = ""):
+        EzPickle.__init__(self, scenario=scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
+        if max_cycles < 1:
+            raise ValueError(f"max_cycles must be >= 1, got {max_cycles}")
+        world = scenario.make_world()
+        super().__init__(
+            scenario=scenario,
+            world=world,
+            max_cycles=max_cycles,
+            render_mode=render_mode,
+            continuous_actions=True,
+            dynamic_rescaling=True,
+        )
+        self.metadata = {**self.metadata, "name": name}
+        for agent in self.world.agents:
+            if agent.movable:
+                space = spaces.Box(-1.0, 1.0, (self.world.dim_p,), dtype=np.float32)
+            else:
+                space = spaces.Box(0.0, 1.0, (self.world.dim_c,), dtype=np.float32)
+            self.action_spaces[agent.name] = space
+        self._success_ever = False
+        self._episode_collisions = 0
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        super().reset(seed=seed, options=options)
+        self._success_ever = False
+        self._episode_collisions = 0
+
+    def _execute_world_step(self) -> None:
+        world = self.world
+        for agent, action in zip(world.agents, self.current_actions):
+            action = np.asarray(action, dtype=np.float64)
+            if agent.movable:
+                agent.action.u = FORCE_SCALE * action[: world.dim_p]
+            else:
+                agent.action.u = np.zeros(world.dim_p)
+            agent.action.c = np.zeros(world.dim_c) if agent.silent else action[-world.dim_c :].copy()
+        world.step()
+        scenario: TaskScenario = self.scenario  # type: ignore[assignment]
+        reward = float(scenario.shared_reward(world))
+        success = scenario.success(world)
+        collisions = scenario.collisions(world)
+        self._success_ever = self._success_ever or success
+        self._episode_collisions += collisions
+        info = {
+            "success": success,
+            "is_success": self._success_ever,
+            "collisions": collisions,
+            "episode_collisions": self._episode_collisions,
+        }
+        for agent in world.agents:
+            self.rewards[agent.name] = reward
+            self.infos[agent.name] = dict(info)
+
+
+def make_aec_env(scenario: TaskScenario, max_cycles: int, render_mode: str | None, name: str) -> Any:
+    """The AEC env with PettingZoo's standard wrappers (actions clipped to their bounds, call order enforced)."""
+    env = TaskEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
+    return wrappers.OrderEnforcingWrapper(wrappers.ClipOutOfBoundsWrapper(env))

@@ -1,0 +1,41 @@
+"""
+2-Agent Navigation (sparse reward), the paper's fully observed task, in mpe2's style.
+
+    from sb3_macb.envs import two_agent_navigation_v0
+    env = two_agent_navigation_v0.parallel_env(max_cycles=20)
+
+Two agents (``agent_0``, ``agent_1``) must cover two landmarks. Observation (10 per agent): own velocity, own
+position, both landmarks and the other agent relative to it. Action: a 2-D force command in [-1, 1].
+"""
+
+from typing import Any
+
+from pettingzoo.utils.conversions import parallel_wrapper_fn
+
+from sb3_macb.envs.tasks import TwoAgentNavigationScenario, make_aec_env
+
+NAME = "two_agent_navigation_v0"
+
+
+def env(
+    max_cycles: int = 20,
+    reward_radius: float = 0.125,
+    success_radius: float = 0.25,
+    collision_penalty: bool = True,
+    terminate_on_success: bool = False,
+    render_mode: str | None = None,
+) -> Any:
+    """
+    :param max_cycles: Steps per episode.
+    :param reward_radius: A landmark counts as covered for the reward when an agent is within this distance.
+    :param success_radius: The episode succeeds when every landmark has an agent within this distance.
+    :param collision_penalty: Whether colliding agents are penalised.
+    :param terminate_on_success: End the episode on success (the paper's episodes run on).
+    :param render_mode: None, ``"rgb_array"`` or ``"human"``.
+    :return: The AEC environment.
+    """
+    scenario = TwoAgentNavigationScenario(reward_radius, success_radius, collision_penalty, terminate_on_success)
+    return make_aec_env(scenario, max_cycles, render_mode, NAME)
+
+
+parallel_env = parallel_wrapper_fn(env)
