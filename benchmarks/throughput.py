@@ -64,7 +64,7 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=300)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--batch-size", type=int, default=100)
-    parser.add_argument("--quick", action="store_true", help="only the 400-300 pair")
+    parser.add_argument("--quick", action="store_true", help="only the 400-300 speaker-listener configurations")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
 
@@ -72,13 +72,13 @@ def main() -> None:
     configs: dict[str, Callable[[], BaseAlgorithm]] = {
         "SB3 DDPG, Pendulum-v1, 400-300": lambda: make_model("ddpg", big, args.batch_size, 0),
         "MADDPG, speaker-listener (2 agents), 400-300": lambda: make_model("maddpg", big, args.batch_size, 0),
+        "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: make_model(
+            "maddpg", big, args.batch_size, 0, exploration=MACB(beta=0.8, k=512)
+        ),
     }
     if not args.quick:
         configs.update(
             {
-                "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: make_model(
-                    "maddpg", big, args.batch_size, 0, exploration=MACB(beta=0.8, k=512)
-                ),
                 "SB3 DDPG, Pendulum-v1, 64-64": lambda: make_model("ddpg", small, args.batch_size, 0),
                 "MADDPG, speaker-listener, 64-64": lambda: make_model("maddpg", small, args.batch_size, 0),
                 "MADDPG, simple_spread N=4 (4 agents), 400-300": lambda: make_model("maddpg-4", big, args.batch_size, 0),

@@ -245,3 +245,20 @@ def test_learns_easy_cooperative_task():
     trained_return, _ = evaluate_policy(model, eval_env, n_eval_episodes=20)
     assert trained_return > random_return / 3, (random_return, trained_return)
     assert trained_return > -3.0
+
+
+@pytest.mark.skipif(not th.cuda.is_available(), reason="no CUDA device on this machine")
+def test_cuda_matches_cpu(tmp_path):
+    from sb3_macb import MACB
+
+    model = MADDPG(
+        "MlpPolicy", Rendezvous(), policy_kwargs=SMALL, learning_starts=10, batch_size=8, action_noise=noise(),
+        exploration=MACB(k=32), seed=0, device="cuda",
+    )
+    model.learn(40)
+    assert next(model.policy.parameters()).is_cuda
+    model.save(tmp_path / "m.zip")
+    cpu = MADDPG.load(tmp_path / "m.zip", device="cpu")
+    obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
+    np.testing.assert_allclose(model.predict(obs, deterministic=True)[0], cpu.predict(obs, deterministic=True)[0], atol=1e-5)
+    assert cpu.exploration.total_count == 40

@@ -48,6 +48,7 @@ class CountTable:
     """
 
     max_load = 0.75
+    probe_window = 8
 
     def __init__(self, capacity: int = 64):
         capacity = 1 << max(4, int(np.ceil(np.log2(max(capacity, 16)))))
@@ -66,33 +67,46 @@ class CountTable:
         return self.keys.nbytes + self.counts.nbytes
 
     def _probe(self, keys: np.ndarray, insert: bool) -> np.ndarray:
-        """Slots of distinct ``keys``; missing keys are inserted (count 0) or reported as -1."""
-        mask = np.uint64(self.capacity - 1)
-        slots = (keys & mask).astype(np.int64)
+        """
+        Slots of distinct ``keys``; missing keys are inserted (count 0) or reported as -1.
+
+        Linear probing, vectorized over the keys and over a window of ``probe_window`` slots at a time, so that a
+        lookup or an insert takes one or two passes at any load the table allows.
+        """
+        mask = self.capacity - 1
+        window = np.arange(self.probe_window)
+        table_keys = self.keys
+        start = (keys & np.uint64(mask)).astype(np.int64)
         result = np.full(len(keys), -1, dtype=np.int64)
         pending = np.arange(len(keys))
-        table_keys = self.keys
         while len(pending):
-            pslots = slots[pending]
-            current = table_keys[pslots]
-            found = current == keys[pending]
-            result[pending[found]] = pslots[found]
-            empty = current == _EMPTY
-            if insert and empty.any():
-                # several pending keys may claim the same empty slot: the first wins, the others probe on
-                claim_idx = np.flatnonzero(empty)
-                _, first = np.unique(pslots[claim_idx], return_index=True)
-                winners = claim_idx[first]
-                table_keys[pslots[winners]] = keys[pending[winners]]
-                result[pending[winners]] = pslots[winners]
-                self.num_codes += len(winners)
-                done = found.copy()
-                done[winners] = True
-            else:
-                done = found | empty  # not inserting: an empty slot means the key is absent
-            keep = ~done
-            pending = pending[keep]
-            slots[pending] = (pslots[keep] + 1) & int(mask)
+            base = start[pending]
+            slots = (base[:, None] + window) & mask
+            current = table_keys[slots]
+            pending_keys = keys[pending]
+            stop = (current == pending_keys[:, None]) | (current == _EMPTY)
+            resolved = stop.any(axis=1)
+            # rows whose whole window is taken by other keys move on to the next window
+            start[pending[~resolved]] = (base[~resolved] + self.probe_window) & mask
+            rows = np.flatnonzero(resolved)
+            slot = slots[rows, stop[rows].argmax(axis=1)]
+            found = table_keys[slot] == pending_keys[rows]
+            result[pending[rows[found]]] = slot[found]
+            retry = pending[~resolved]
+            if insert:
+                claim = rows[~found]
+                claim_slots = slot[~found]
+                # several keys may claim the same empty slot: the first wins, the others probe on from there
+                _, first = np.unique(claim_slots, return_index=True)
+                won = np.zeros(len(claim), dtype=bool)
+                won[first] = True
+                table_keys[claim_slots[won]] = keys[pending[claim[won]]]
+                result[pending[claim[won]]] = claim_slots[won]
+                self.num_codes += int(won.sum())
+                losers = pending[claim[~won]]
+                start[losers] = claim_slots[~won]
+                retry = np.concatenate([retry, losers])
+            pending = retry
         return result
 
     def _grow(self, needed: int) -> None:

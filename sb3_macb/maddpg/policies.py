@@ -207,6 +207,9 @@ class MADDPGPolicy(BasePolicy):
         return self.actor(observation)  # type: ignore[arg-type]
 
     def set_training_mode(self, mode: bool) -> None:
+        # SB3 calls this at every predict() and train(); walking the modules costs more than it does here
+        if mode == self.training and self.actor.training == mode and self.critic.training == mode:
+            return
         self.actor.train(mode)
         self.critic.train(mode)
         self.training = mode
