@@ -17,8 +17,10 @@ import numpy as np
 import torch as th
 from torch import nn
 
-# Layers with at least this many weights per group go through oneDNN's GEMM; smaller ones use addmm.
+# Products with at least this many weights per group and this many rows go through oneDNN's GEMM; smaller ones
+# (where a call's fixed cost dominates, e.g. predict() on one observation) use addmm.
 ONEDNN_MIN_WEIGHTS = 8192
+ONEDNN_MIN_ROWS = 16
 
 
 def _onednn_linear_op() -> Any:
@@ -44,7 +46,7 @@ def onednn_available() -> bool:
 
 def _linear(x: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, relu: bool) -> th.Tensor:
     """``x @ weight.T + bias`` (then ReLU), with weight of shape (out, in)."""
-    if weight.numel() >= ONEDNN_MIN_WEIGHTS:
+    if weight.numel() >= ONEDNN_MIN_WEIGHTS and x.shape[0] >= ONEDNN_MIN_ROWS:
         return _LINEAR(x, weight, bias, "relu" if relu else "none", [], "")
     out = th.addmm(bias, x, weight.t()) if bias is not None else th.mm(x, weight.t())
     return out.relu_() if relu else out
@@ -52,7 +54,9 @@ def _linear(x: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, relu: bool)
 
 def _matmul_nt(a: th.Tensor, b: th.Tensor) -> th.Tensor:
     """``a @ b.T``."""
-    return _LINEAR(a, b, None, "none", [], "") if a.shape[1] * b.shape[0] >= ONEDNN_MIN_WEIGHTS else th.mm(a, b.t())
+    if b.numel() >= ONEDNN_MIN_WEIGHTS and a.shape[0] >= ONEDNN_MIN_ROWS:
+        return _LINEAR(a, b, None, "none", [], "")
+    return th.mm(a, b.t())
 
 
 class _GroupedReluMLP(th.autograd.Function):

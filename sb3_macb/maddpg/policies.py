@@ -207,12 +207,20 @@ class MADDPGPolicy(BasePolicy):
         return self.actor(observation)  # type: ignore[arg-type]
 
     def set_training_mode(self, mode: bool) -> None:
-        # SB3 calls this at every predict() and train(); walking the modules costs more than it does here
-        if mode == self.training and self.actor.training == mode and self.critic.training == mode:
-            return
-        self.actor.train(mode)
-        self.critic.train(mode)
-        self.training = mode
+        """
+        Put the actors and critics in training or evaluation mode.
+
+        SB3 switches modes at every ``predict()`` and ``train()``, i.e. twice per environment step. ``Module.train``
+        walks all submodules through ``nn.Module.__setattr__``; setting the flag on the precomputed list of
+        submodules does the same in a fraction of the time.
+        """
+        modules = self.__dict__.get("_mode_modules")
+        if modules is None:
+            modules = [*self.actor.modules(), *self.critic.modules()]
+            self.__dict__["_mode_modules"] = modules
+        for module in modules:
+            module.__dict__["training"] = mode
+        self.__dict__["training"] = mode
 
 
 MlpPolicy = MADDPGPolicy
