@@ -8,7 +8,7 @@ from sb3_macb.envs import ENV_IDS, communicative_navigation_v0, two_agent_naviga
 
 
 def raw(par_env):
-    return par_env.aec_env.unwrapped
+    return par_env.task_env
 
 
 def place(world, agents=(), landmarks=()):
@@ -51,7 +51,7 @@ def test_navigation_rewards_and_success():
     place(world, agents=[(0.0, 0.0), (0.2, 0.0)], landmarks=[(0.9, 0.9), (-0.9, -0.9)])
     assert scenario.collisions(world) == 1
     assert scenario.shared_reward(world) == -1.5 and not scenario.success(world)
-    assert two_agent_navigation_v0.parallel_env(collision_penalty=False).aec_env.unwrapped.scenario.shared_reward(world) == -1.0
+    assert two_agent_navigation_v0.parallel_env(collision_penalty=False).task_env.scenario.shared_reward(world) == -1.0
 
 
 def test_navigation_step_infos_and_observation():
@@ -148,3 +148,28 @@ def test_render_rgb_array():
     env.step(env.action_space.sample())
     frame = env.render()
     assert frame.shape == (700, 700, 3) and frame.dtype == np.uint8 and frame.std() > 0
+
+
+@pytest.mark.parametrize("module", [two_agent_navigation_v0, communicative_navigation_v0])
+def test_aec_version(module):
+    from pettingzoo.test import api_test
+
+    api_test(module.env(), num_cycles=30)
+    env = module.env()
+    env.reset(seed=0)
+    assert env.possible_agents == module.parallel_env().possible_agents
+
+
+def test_actions_are_clipped_and_required():
+    env = communicative_navigation_v0.parallel_env()
+    env.reset(seed=0)
+    start = raw(env).world.agents[1].state.p_pos.copy()
+    listener = raw(env).world.agents[1]
+    env.step({"speaker_0": np.zeros(3), "listener_0": np.array([50.0, 0.0])})
+    # clipped to 1: force 5, dt 0.1 -> velocity 0.5 (MPE moves by the previous step's velocity, so not yet)
+    np.testing.assert_allclose(listener.state.p_vel, [0.5, 0.0], atol=1e-9)
+    np.testing.assert_allclose(listener.state.p_pos, start, atol=1e-9)
+    env.step({"speaker_0": np.zeros(3), "listener_0": np.zeros(2)})
+    np.testing.assert_allclose(listener.state.p_pos - start, [0.05, 0.0], atol=1e-9)
+    with pytest.raises(KeyError, match="listener_0"):
+        env.step({"speaker_0": np.zeros(3)})

@@ -11,21 +11,19 @@ listener (``listener_0``, observation 11: velocity, the three landmarks relative
 
 from typing import Any
 
-from pettingzoo.utils.conversions import parallel_wrapper_fn
-
-from sb3_macb.envs.tasks import CommunicativeNavigationScenario, make_aec_env
+from sb3_macb.envs.tasks import CommunicativeNavigationScenario, TaskParallelEnv, make_parallel_env, to_aec
 
 NAME = "communicative_navigation_v0"
 
 
-def env(
+def parallel_env(
     max_cycles: int = 20,
     reward: str = "sparse",
     reward_radius: float = 0.15,
     success_radius: float = 0.15,
     terminate_on_success: bool = False,
     render_mode: str | None = None,
-) -> Any:
+) -> TaskParallelEnv:
     """
     :param max_cycles: Steps per episode.
     :param reward: ``"sparse"`` (0 within ``reward_radius`` of the goal, else -1) or ``"distance"`` (minus the
@@ -34,10 +32,12 @@ def env(
     :param success_radius: The episode succeeds when the listener comes within this distance of the goal.
     :param terminate_on_success: End the episode on success (the paper's episodes run on).
     :param render_mode: None, ``"rgb_array"`` or ``"human"``.
-    :return: The AEC environment.
+    :return: The parallel environment (``env()`` gives the AEC version).
     """
     scenario = CommunicativeNavigationScenario(reward, reward_radius, success_radius, terminate_on_success)
-    return make_aec_env(scenario, max_cycles, render_mode, NAME)
+    return make_parallel_env(scenario, max_cycles, render_mode, NAME)
 
 
-parallel_env = parallel_wrapper_fn(env)
+def env(**kwargs: Any) -> Any:
+    """The AEC version of :func:`parallel_env` (same arguments)."""
+    return to_aec(parallel_env(**kwargs))

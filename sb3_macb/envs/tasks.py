@@ -18,7 +18,7 @@ from gymnasium.utils import EzPickle
 from mpe2._mpe_utils.core import Agent, Landmark, World
 from mpe2._mpe_utils.scenario import BaseScenario
 from mpe2._mpe_utils.simple_env import SimpleEnv
-from pettingzoo.utils import wrappers
+from pettingzoo import ParallelEnv
 
 FORCE_SCALE = 5.0  # MPE's default sensitivity: force = 5 * u
 
@@ -282,7 +282,89 @@ class TaskEnv(SimpleEnv, EzPickle):
             self.infos[agent.name] = dict(info)
 
 
-def make_aec_env(scenario: TaskScenario, max_cycles: int, render_mode: str | None, name: str) -> Any:
-    """The AEC env with PettingZoo's standard wrappers (actions clipped to their bounds, call order enforced)."""
-    env = TaskEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
-    return wrappers.OrderEnforcingWrapper(wrappers.ClipOutOfBoundsWrapper(env))
+class TaskParallelEnv(ParallelEnv):
+    """
+    The task as a native PettingZoo ``ParallelEnv``: one call steps the world for all agents.
+
+    It drives the :class:`TaskEnv` it holds (``self.task_env``: world, seeding, spaces, rendering) directly, without
+    PettingZoo's AEC-to-parallel conversion, which costs several times the physics itself. Actions are clipped
+    to their bounds, as mpe2's ``ClipOutOfBoundsWrapper`` does.
+
+    :param scenario: The task's scenario.
+    :param max_cycles: Steps per episode.
+    :param render_mode: None, ``"rgb_array"`` or ``"human"``.
+    :param name: The environment's name in ``metadata``.
+    """
+
+    def __init__(self, scenario: TaskScenario, max_cycles: int = 20, render_mode: str | None = None, name: str = ""):
+        self.task_env = TaskEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
+        self.metadata = dict(self.task_env.metadata)
+        self.render_mode = render_mode
+        self.max_cycles = max_cycles
+        self.possible_agents = list(self.task_env.possible_agents)
+        self.agents: list[str] = []
+        self._bounds = [(self.action_space(a).low, self.action_space(a).high) for a in self.possible_agents]
+        self.steps = 0
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        return self.task_env.observation_space(agent)
+
+    def action_space(self, agent: str) -> spaces.Space:
+        return self.task_env.action_space(agent)
+
+    def _observations(self) -> dict[str, np.ndarray]:
+        env = self.task_env
+        return {agent.name: env.scenario.observation(agent, env.world).astype(np.float32) for agent in env.world.agents}
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        self.task_env.reset(seed=seed, options=options)
+        self.agents = self.possible_agents[:]
+        self.steps = 0
+        return self._observations(), {agent: {} for agent in self.agents}
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if not self.agents:
+            raise RuntimeError("step() called on an ended episode: call reset() first")
+        missing = [agent for agent in self.agents if agent not in actions]
+        if missing:
+            raise KeyError(f"No action given for agent(s) {missing}")
+        env = self.task_env
+        env.current_actions = [
+            np.clip(np.asarray(actions[agent], dtype=np.float64), low, high)
+            for agent, (low, high) in zip(self.possible_agents, self._bounds)
+        ]
+        env._execute_world_step()
+        self.steps += 1
+        truncated = self.steps >= self.max_cycles
+        terminated = not truncated and env.scenario.is_terminal(env.world)
+        observations = self._observations()
+        rewards = {agent: env.rewards[agent] for agent in self.agents}
+        terminations = {agent: terminated for agent in self.agents}
+        truncations = {agent: truncated for agent in self.agents}
+        infos = {agent: env.infos[agent] for agent in self.agents}
+        if terminated or truncated:
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def render(self) -> Any:
+        return self.task_env.render()
+
+    def state(self) -> np.ndarray:
+        return self.task_env.state()
+
+    def close(self) -> None:
+        self.task_env.close()
+
+
+def make_parallel_env(scenario: TaskScenario, max_cycles: int, render_mode: str | None, name: str) -> TaskParallelEnv:
+    """The task as a native ParallelEnv."""
+    return TaskParallelEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
+
+
+def to_aec(env: TaskParallelEnv) -> Any:
+    """The AEC version of a task's parallel env (PettingZoo's conversion)."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(env)

@@ -10,21 +10,19 @@ position, both landmarks and the other agent relative to it. Action: a 2-D force
 
 from typing import Any
 
-from pettingzoo.utils.conversions import parallel_wrapper_fn
-
-from sb3_macb.envs.tasks import TwoAgentNavigationScenario, make_aec_env
+from sb3_macb.envs.tasks import TwoAgentNavigationScenario, TaskParallelEnv, make_parallel_env, to_aec
 
 NAME = "two_agent_navigation_v0"
 
 
-def env(
+def parallel_env(
     max_cycles: int = 20,
     reward_radius: float = 0.125,
     success_radius: float = 0.25,
     collision_penalty: bool = True,
     terminate_on_success: bool = False,
     render_mode: str | None = None,
-) -> Any:
+) -> TaskParallelEnv:
     """
     :param max_cycles: Steps per episode.
     :param reward_radius: A landmark counts as covered for the reward when an agent is within this distance.
@@ -32,10 +30,12 @@ def env(
     :param collision_penalty: Whether colliding agents are penalised.
     :param terminate_on_success: End the episode on success (the paper's episodes run on).
     :param render_mode: None, ``"rgb_array"`` or ``"human"``.
-    :return: The AEC environment.
+    :return: The parallel environment (``env()`` gives the AEC version).
     """
     scenario = TwoAgentNavigationScenario(reward_radius, success_radius, collision_penalty, terminate_on_success)
-    return make_aec_env(scenario, max_cycles, render_mode, NAME)
+    return make_parallel_env(scenario, max_cycles, render_mode, NAME)
 
 
-parallel_env = parallel_wrapper_fn(env)
+def env(**kwargs: Any) -> Any:
+    """The AEC version of :func:`parallel_env` (same arguments)."""
+    return to_aec(parallel_env(**kwargs))

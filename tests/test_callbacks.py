@@ -1,0 +1,122 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.noise import NormalActionNoise
+
+from sb3_macb import MACB, MADDPG
+from sb3_macb.callbacks import MultiAgentEvalCallback, StopTrainingOnNoSuccessImprovement, StopTrainingOnSuccessRate
+
+COMM = "sb3_macb/CommunicativeNavigation-v0"
+NAV = "sb3_macb/TwoAgentNavigation-v0"
+
+
+def make_model(env_id=COMM, env_kwargs=None, **kwargs):
+    env = gym.make(env_id, **(env_kwargs or {}))
+    dim = env.action_space.shape[0]
+    return MADDPG(
+        "MlpPolicy",
+        env,
+        learning_starts=40,
+        batch_size=16,
+        policy_kwargs=dict(net_arch=[32, 32]),
+        action_noise=NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim)),
+        seed=0,
+        **kwargs,
+    )
+
+
+def test_early_stop_fires_on_trivially_easy_task():
+    easy = dict(success_radius=100.0)
+    model = make_model(env_kwargs=easy)
+    callback = MultiAgentEvalCallback(COMM, env_kwargs=easy, n_eval_episodes=4, eval_freq=20, stop_success_rate=0.9,
+                                      min_evals=2, seed=1, verbose=0)
+    model.learn(2_000, callback=callback)
+    assert callback.last_success_rate == 1.0
+    assert model.num_timesteps == 40  # two evaluations, then stop
+
+
+def test_early_stop_does_not_fire_on_the_real_task():
+    model = make_model()
+    callback = MultiAgentEvalCallback(COMM, n_eval_episodes=4, eval_freq=20, stop_success_rate=0.9, seed=1, verbose=0)
+    model.learn(200, callback=callback)
+    assert model.num_timesteps == 200
+    assert len(callback.evaluations_timesteps) == 10
+    assert max(np.mean(s) for s in callback.evaluations_successes) < 0.9
+
+
+def test_no_improvement_stop():
+    easy = dict(success_radius=100.0)
+    model = make_model(env_kwargs=easy)
+    callback = MultiAgentEvalCallback(COMM, env_kwargs=easy, n_eval_episodes=2, eval_freq=20, stop_patience=3,
+                                      min_evals=0, seed=1, verbose=0)
+    model.learn(2_000, callback=callback)
+    # success is 1.0 from the first evaluation: three more without improvement, then stop
+    assert len(callback.evaluations_timesteps) == 4 and model.num_timesteps == 80
+
+
+def test_with_sb3_eval_callback():
+    easy = dict(success_radius=100.0)
+    model = make_model(env_kwargs=easy)
+    eval_env = make_vec_env(COMM, n_envs=2, env_kwargs=easy, seed=0)
+    callback = EvalCallback(eval_env, n_eval_episodes=2, eval_freq=20, verbose=0,
+                            callback_after_eval=StopTrainingOnSuccessRate(0.5))
+    model.learn(1_000, callback=callback)
+    assert model.num_timesteps == 20
+
+
+def test_stop_callbacks_need_an_eval_callback():
+    model = make_model()
+    with pytest.raises(TypeError, match="callback_after_eval of an EvalCallback"):
+        model.learn(30, callback=StopTrainingOnSuccessRate(0.5))
+    with pytest.raises(ValueError, match="threshold"):
+        StopTrainingOnSuccessRate(1.5)
+    with pytest.raises(ValueError, match="max_no_improvement_evals"):
+        StopTrainingOnNoSuccessImprovement(0)
+
+
+def test_evaluation_file_and_best_model(tmp_path):
+    model = make_model(NAV, exploration=MACB(k=32))
+    callback = MultiAgentEvalCallback(NAV, n_eval_episodes=3, eval_freq=20, log_path=str(tmp_path),
+                                      best_model_save_path=str(tmp_path), save_freq=4, seed=2, verbose=0)
+    model.learn(200, callback=callback)
+    data = np.load(tmp_path / "evaluations.npz")
+    n = 10
+    assert set(data.files) >= {"timesteps", "results", "ep_lengths", "successes", "episodes", "agent_returns",
+                               "collisions", "num_codes", "count1_fraction"}
+    np.testing.assert_array_equal(data["timesteps"], np.arange(20, 201, 20))
+    np.testing.assert_array_equal(data["episodes"], np.arange(1, n + 1))
+    assert data["results"].shape == (n, 3) and data["successes"].shape == (n, 3)
+    assert data["agent_returns"].shape == (n, 3, 2)
+    # each agent's return is the shared reward summed over the episode, equal to the team return here
+    np.testing.assert_allclose(data["agent_returns"][..., 0], data["results"], rtol=1e-5)
+    assert data["collisions"].shape == (n, 3) and (data["collisions"] >= 0).all()
+    # evaluations run in the callback, before SB3 stores that step's transition: one transition behind at the end
+    assert model.exploration.num_codes - 1 <= data["num_codes"][-1] <= model.exploration.num_codes
+    assert (np.diff(data["num_codes"]) >= 0).all() and data["num_codes"][0] > 0
+    assert 0 < data["count1_fraction"][-1] <= 1
+
+    # the best model is the first evaluation with the highest (success rate, mean return)
+    scores = [(np.mean(s), np.mean(r)) for s, r in zip(data["successes"], data["results"])]
+    best = max(range(n), key=lambda i: (scores[i], -i))
+    saved = MADDPG.load(tmp_path / "best_model.zip")
+    assert saved.num_timesteps == data["timesteps"][best]
+
+
+def test_training_collisions_counted():
+    class CountCollisions(BaseCallback):
+        total = 0
+
+        def _on_step(self):
+            for info in self.locals["infos"]:
+                self.total += info["agent_infos"]["agent_0"]["collisions"]
+            return True
+
+    from stable_baselines3.common.callbacks import CallbackList
+
+    model = make_model(NAV, env_kwargs=dict(reward_radius=0.125))
+    counter = CountCollisions()
+    callback = MultiAgentEvalCallback(NAV, n_eval_episodes=2, eval_freq=100, seed=0, verbose=0)
+    model.learn(400, callback=CallbackList([counter, callback]))
+    assert callback.training_collisions == counter.total
