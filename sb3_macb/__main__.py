@@ -1,0 +1,5 @@
+import sys
+
+from sb3_macb.cli import main
+
+sys.exit(main())

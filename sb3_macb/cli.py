@@ -1,0 +1,38 @@
+"""The ``sb3-macb`` command (also ``python -m sb3_macb``): train, sweep, plot."""
+
+import sys
+
+USAGE = """usage: sb3-macb {train,sweep,plot} ...
+
+  train   rl_zoo3's train with MADDPG and the paper's tasks (sb3-macb train -h for rl_zoo3's options, plus --variant)
+  sweep   run a grid of settings x seeds as trials of an Optuna study, shared by any number of workers
+  plot    learning curves, collisions, the beta x k table and heatmap, the SimHash grouping figure
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(USAGE)
+        return 0 if argv else 2
+    command, rest = argv[0], argv[1:]
+    if command == "train":
+        from sb3_macb.zoo.train import train
+
+        train(rest)
+    elif command == "sweep":
+        from sb3_macb.zoo.sweep import main as sweep
+
+        sweep(rest)
+    elif command == "plot":
+        from sb3_macb.zoo.plots import main as plot
+
+        plot(rest)
+    else:
+        print(f"sb3-macb: unknown command '{command}'\n\n{USAGE}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

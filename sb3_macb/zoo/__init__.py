@@ -1,0 +1,1 @@
+"""The zoo: rl_zoo3 with MADDPG registered, grid sweeps over Optuna storages, and the paper's plots."""
