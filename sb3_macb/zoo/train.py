@@ -106,6 +106,7 @@ def _experiment_manager_class() -> type:
         """rl_zoo3's ExperimentManager with variants, dotted overrides, key checks and the paper's evaluation."""
 
         variants: list[str] = []
+        overrides: dict[str, Any] = {}
         last_save_path: str | None = None
 
         def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -117,6 +118,7 @@ def _experiment_manager_class() -> type:
                 if name not in variants:
                     raise ValueError(f"Unknown variant '{name}' in {self.config}; known variants: {sorted(variants)}")
                 hyperparams = apply_overrides(hyperparams, variants[name])
+            hyperparams = apply_overrides(hyperparams, self.overrides)
             hyperparams = apply_overrides(hyperparams, custom or {})
             check_hyperparams(hyperparams, f"{self.config} (env {self.env_name.gym_id})")
             self.custom_hyperparams = custom
@@ -164,11 +166,12 @@ def _with_defaults(argv: list[str], defaults: dict[str, list[str]]) -> list[str]
     return argv + extra
 
 
-def train(argv: list[str] | None = None) -> str | None:
+def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None) -> str | None:
     """
     Run ``sb3-macb train`` with these arguments (rl_zoo3's train arguments plus ``--variant``).
 
     :param argv: Command-line arguments (default: ``sys.argv[1:]``).
+    :param overrides: Hyperparameters (dotted names allowed) applied after the variants, before ``-params``.
     :return: The run's folder (rl_zoo3's layout: ``LOGDIR/maddpg/ENV_ID_N``).
     """
     import rl_zoo3.train as zoo_train
@@ -199,6 +202,7 @@ def train(argv: list[str] | None = None) -> str | None:
     register_with_rl_zoo3()
     manager_class = _experiment_manager_class()
     manager_class.variants = [v for v in own.variant.split(",") if v]
+    manager_class.overrides = dict(overrides or {})
     original, zoo_train.ExperimentManager = zoo_train.ExperimentManager, manager_class
     saved_argv = sys.argv
     try:

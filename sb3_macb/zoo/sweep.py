@@ -1,0 +1,212 @@
+"""
+``sb3-macb sweep``: a grid of settings x seeds run as the trials of one Optuna study.
+
+Any number of workers, on one machine or many, started with the same ``--storage`` and ``--study-name`` share the
+grid:
+
+- the first worker to create the study's marker (``NAME.grid``, an atomic create in the storage) puts every grid
+  point in the study's queue of waiting trials; a waiting trial is claimed by exactly one worker, so each point
+  runs once;
+- workers send heartbeats; the trial of a worker that dies is failed by the next worker that looks at the study
+  and put back in the queue (Optuna's ``RetryHeartbeatStaleTrialCallback``), where another worker picks it up;
+- a worker leaves when nothing is waiting or running.
+
+Storage: a SQLite file by default (``sqlite:///LOGDIR/sweeps.db``); a PostgreSQL URL spreads the workers over
+machines. Each trial records its success rate (mean over the last ``final_evals`` evaluations), the count-1
+fraction of its MACB table, and its run folder; ``LOGDIR/NAME/results.csv`` lists the finished trials.
+
+Config (YAML)::
+
+    algo: maddpg
+    env: sb3_macb/CommunicativeNavigation-v0
+    n_timesteps: 800000
+    variant: fast                       # optional, see zoo/hyperparams/maddpg.yml
+    hyperparams: {batch_size: 100}      # optional, rl_zoo3 style, on top of the YAML entry
+    grid:
+      exploration.beta: [0.05, 0.2, 0.4, 0.8]
+      exploration.k: [32, 64, 256, 512]
+    seeds: [0, 1, 2]
+"""
+
+import argparse
+import csv
+import itertools
+import os
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+import optuna
+import yaml
+from optuna.trial import TrialState
+
+CONFIG_KEYS = {
+    "algo", "env", "n_timesteps", "variant", "hyperparams", "grid", "seeds", "eval_freq", "eval_episodes",
+    "conf_file", "final_evals",
+}  # fmt: skip
+
+
+def load_config(path: str) -> dict[str, Any]:
+    """Read and check a sweep config (unknown keys and missing ones are errors that name them)."""
+    with open(path) as file:
+        config = yaml.safe_load(file) or {}
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: a sweep config is a mapping of keys {sorted(CONFIG_KEYS)}")
+    unknown = sorted(set(config) - CONFIG_KEYS)
+    if unknown:
+        raise ValueError(f"{path}: unknown sweep config key(s) {unknown}; known keys: {sorted(CONFIG_KEYS)}")
+    missing = [key for key in ("env", "grid", "seeds") if key not in config]
+    if missing:
+        raise ValueError(f"{path}: missing sweep config key(s) {missing}")
+    if config.get("algo", "maddpg") != "maddpg":
+        raise ValueError(f"{path}: algo must be 'maddpg', got {config['algo']!r}")
+    grid = config["grid"]
+    if not isinstance(grid, dict) or not grid or not all(isinstance(v, list) and v for v in grid.values()):
+        raise ValueError(f"{path}: grid maps parameter names to non-empty lists of values")
+    if "seed" in grid:
+        raise ValueError(f"{path}: give seeds under 'seeds', not in the grid")
+    if not isinstance(config["seeds"], list) or not config["seeds"]:
+        raise ValueError(f"{path}: seeds is a non-empty list of integers")
+    from sb3_macb.zoo.train import MODEL_KEYS, ZOO_KEYS
+
+    for name in grid:
+        if name.split(".")[0] not in ZOO_KEYS | MODEL_KEYS:
+            raise ValueError(f"{path}: grid parameter '{name}' is not a hyperparameter of MADDPG or rl_zoo3")
+    return config
+
+
+def grid_points(config: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every combination of the grid's values and the seeds."""
+    names = list(config["grid"])
+    points = []
+    for values in itertools.product(*(config["grid"][n] for n in names)):
+        for seed in config["seeds"]:
+            points.append({**dict(zip(names, values)), "seed": int(seed)})
+    return points
+
+
+def make_storage(url: str, heartbeat_interval: int) -> optuna.storages.RDBStorage:
+    """An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers."""
+    return optuna.storages.RDBStorage(
+        url,
+        heartbeat_interval=heartbeat_interval,
+        grace_period=3 * heartbeat_interval,
+        failed_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=3),
+    )
+
+
+def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name: str, points: list[dict]) -> None:
+    marker_name = f"{name}.grid"
+    try:
+        marker = optuna.create_study(study_name=marker_name, storage=storage)
+    except optuna.exceptions.DuplicatedStudyError:
+        marker = optuna.load_study(study_name=marker_name, storage=storage)
+        for _ in range(600):  # another worker is putting the grid in the queue
+            if "n_points" in marker.user_attrs:
+                break
+            time.sleep(0.1)
+            marker = optuna.load_study(study_name=marker_name, storage=storage)
+        if marker.user_attrs.get("n_points") not in (None, len(points)):
+            raise ValueError(f"Study '{name}' was started with another grid ({marker.user_attrs['n_points']} points)")
+        return
+    for point in points:
+        study.enqueue_trial(point, user_attrs={"grid_point": True})
+    marker.set_user_attr("n_points", len(points))
+
+
+def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -> tuple[float, float, str]:
+    """Train one grid point; return (success rate, count-1 fraction, run folder)."""
+    from sb3_macb.zoo.train import train
+
+    overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
+    argv = [
+        "--env", config["env"], "-f", run_folder, "--seed", str(params["seed"]), "--no-progress", "--verbose", "0",
+        "--eval-freq", str(config.get("eval_freq", 20)), "--eval-episodes", str(config.get("eval_episodes", 10)),
+    ]  # fmt: skip
+    if "n_timesteps" in config:
+        argv += ["-n", str(int(config["n_timesteps"]))]
+    if config.get("variant"):
+        argv += ["--variant", str(config["variant"])]
+    if config.get("conf_file"):
+        argv += ["-conf", config["conf_file"]]
+    save_path = train(argv, overrides=overrides)
+    assert save_path is not None
+    data = np.load(os.path.join(save_path, "evaluations.npz"))
+    n_final = int(config.get("final_evals", 10))
+    successes = data["successes"] if "successes" in data.files else np.zeros((1, 1))
+    success_rate = float(np.mean(successes[-n_final:]))
+    count1 = float(data["count1_fraction"][-1]) if "count1_fraction" in data.files else float("nan")
+    return success_rate, count1, save_path
+
+
+def write_results(study: optuna.Study, path: str) -> None:
+    """The finished grid trials as CSV: parameters, success rate, count-1 fraction, run folder."""
+    trials = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)) if t.user_attrs.get("grid_point")]
+    names = sorted({name for t in trials for name in t.params})
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    with open(path, "w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(["trial", *names, "success_rate", "count1_fraction", "run_folder"])
+        for t in sorted(trials, key=lambda t: t.number):
+            writer.writerow(
+                [t.number, *[t.params.get(n) for n in names], t.user_attrs.get("success_rate"),
+                 t.user_attrs.get("count1_fraction"), t.user_attrs.get("run_folder")]
+            )  # fmt: skip
+
+
+def work(config_path: str, storage_url: str, study_name: str, log_folder: str, heartbeat: int = 30, poll: float = 5.0) -> None:
+    """
+    Join the sweep as a worker and run grid points until none is waiting or running.
+
+    :param config_path: The sweep config (YAML).
+    :param storage_url: Optuna RDB storage URL (``sqlite:///...`` or ``postgresql://...``).
+    :param study_name: Study shared by all workers of this sweep.
+    :param log_folder: Where the trials' run folders go (``LOG/NAME/trial_N``).
+    :param heartbeat: Heartbeat interval in seconds; a trial silent for 3 intervals is retried elsewhere.
+    :param poll: Seconds between looks at the study while other workers' trials run.
+    """
+    config = load_config(config_path)
+    points = grid_points(config)
+    storage = make_storage(storage_url, heartbeat)
+    study = optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
+    _enqueue_once(storage, study, study_name, points)
+    grid = config["grid"]
+
+    def objective(trial: optuna.Trial) -> float:
+        if not trial.user_attrs.get("grid_point"):
+            raise optuna.TrialPruned("no grid point left for this trial")  # lost a race for the last point
+        params = {name: trial.suggest_categorical(name, values) for name, values in grid.items()}
+        params["seed"] = trial.suggest_categorical("seed", [int(s) for s in config["seeds"]])
+        folder = os.path.join(log_folder, study_name, f"trial_{trial.number}")
+        success_rate, count1, run_folder = run_trial(config, params, folder)
+        trial.set_user_attr("success_rate", success_rate)
+        trial.set_user_attr("count1_fraction", count1)
+        trial.set_user_attr("run_folder", run_folder)
+        return success_rate
+
+    while True:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            optuna.storages.fail_stale_trials(study)
+        trials = study.get_trials(deepcopy=False, states=(TrialState.WAITING, TrialState.RUNNING))
+        if any(t.state == TrialState.WAITING for t in trials):
+            study.optimize(objective, n_trials=1)
+        elif trials:
+            time.sleep(poll)
+        else:
+            break
+    write_results(study, os.path.join(log_folder, study_name, "results.csv"))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="sb3-macb sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", required=True, help="sweep config (YAML)")
+    parser.add_argument("--storage", default=None, help="Optuna storage URL (default: sqlite:///LOGDIR/sweeps.db)")
+    parser.add_argument("--study-name", required=True)
+    parser.add_argument("-f", "--log-folder", default="logs/sweeps")
+    parser.add_argument("--heartbeat", type=int, default=30, help="seconds between a worker's heartbeats")
+    args = parser.parse_args(argv)
+    os.makedirs(args.log_folder, exist_ok=True)
+    storage = args.storage or f"sqlite:///{os.path.abspath(os.path.join(args.log_folder, 'sweeps.db'))}"
+    work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat)
