@@ -114,7 +114,8 @@ class MultiAgentEvalCallback(EvalCallback):
     Each evaluation records the success rate, the team return, every agent's return, the collisions and, with
     MACB, the number of codes and the count-1 fraction. They are logged through SB3's logger (``eval/...``,
     ``exploration/...``) and saved in SB3's ``evaluations.npz`` format (``timesteps``, ``results``, ``ep_lengths``,
-    ``successes``) plus ``episodes``, ``agent_returns``, ``collisions``, ``num_codes`` and ``count1_fraction``.
+    ``successes``) plus ``episodes``, ``agent_returns``, ``collisions``, ``num_codes``, ``count1_fraction`` and
+    ``training_collisions`` (accumulated collisions during training so far).
     The best model is kept by success rate (ties: mean return). Collisions during training are summed and
     logged as ``rollout/collisions_total``.
 
@@ -191,6 +192,7 @@ class MultiAgentEvalCallback(EvalCallback):
         self.evaluations_collisions: list[list[int]] = []
         self.evaluations_num_codes: list[int] = []
         self.evaluations_count1: list[float] = []
+        self.evaluations_training_collisions: list[int] = []
         self._episode_agent_returns: list[np.ndarray] = []
         self._episode_collisions: list[int] = []
         self._running_returns: np.ndarray | None = None
@@ -258,6 +260,7 @@ class MultiAgentEvalCallback(EvalCallback):
         self.evaluations_collisions.append(self._episode_collisions)
         self.evaluations_num_codes.append(exploration.num_codes if exploration is not None else 0)
         self.evaluations_count1.append(exploration.count1_fraction if exploration is not None else 0.0)
+        self.evaluations_training_collisions.append(self.training_collisions)
         if len(self.evaluations_timesteps) % self.save_freq == 0:
             self.save_evaluations()
 
@@ -311,6 +314,7 @@ class MultiAgentEvalCallback(EvalCallback):
             collisions=self.evaluations_collisions,
             num_codes=self.evaluations_num_codes,
             count1_fraction=self.evaluations_count1,
+            training_collisions=self.evaluations_training_collisions,
         )
 
     def _on_training_end(self) -> None:

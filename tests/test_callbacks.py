@@ -84,7 +84,7 @@ def test_evaluation_file_and_best_model(tmp_path):
     data = np.load(tmp_path / "evaluations.npz")
     n = 10
     assert set(data.files) >= {"timesteps", "results", "ep_lengths", "successes", "episodes", "agent_returns",
-                               "collisions", "num_codes", "count1_fraction"}
+                               "collisions", "num_codes", "count1_fraction", "training_collisions"}
     np.testing.assert_array_equal(data["timesteps"], np.arange(20, 201, 20))
     np.testing.assert_array_equal(data["episodes"], np.arange(1, n + 1))
     assert data["results"].shape == (n, 3) and data["successes"].shape == (n, 3)
@@ -120,3 +120,4 @@ def test_training_collisions_counted():
     callback = MultiAgentEvalCallback(NAV, n_eval_episodes=2, eval_freq=100, seed=0, verbose=0)
     model.learn(400, callback=CallbackList([counter, callback]))
     assert callback.training_collisions == counter.total
+    assert callback.evaluations_training_collisions[-1] == counter.total

@@ -1,0 +1,229 @@
+"""
+``sb3-macb plot``: the paper's figures from evaluation files and sweep results.
+
+    sb3-macb plot curves RUN_GROUP [RUN_GROUP ...] -o curves.png      # success rate and return vs episodes
+    sb3-macb plot collisions RUN_GROUP [RUN_GROUP ...] -o collisions.png
+    sb3-macb plot table logs/sweeps/NAME/results.csv -o table          # table.md and table.png (beta x k)
+    sb3-macb plot simhash -o simhash.png                               # the paper's Figure 2
+
+A run group is a folder holding one ``evaluations.npz`` per seed anywhere below it (e.g.
+``results/CommunicativeNavigation-sparse/macb_joint`` with ``seed_0/``, ``seed_1/``, ...); it is labelled by its
+folder name. Curves are the mean over seeds with a confidence band (75% by default, as the paper), after a moving
+average over ``--smooth`` evaluations.
+"""
+
+import argparse
+import csv
+import glob
+import os
+from typing import Any
+
+import numpy as np
+
+# two-sided Student t quantiles for small samples: {confidence: {degrees of freedom: t}}
+_T = {
+    0.75: {1: 2.414, 2: 1.604, 3: 1.423, 4: 1.344, 5: 1.301, 6: 1.273, 7: 1.254, 8: 1.240, 9: 1.230, 10: 1.221},
+    0.95: {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262, 10: 2.228},
+}
+_Z = {0.75: 1.150, 0.95: 1.960}
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def load_group(folder: str) -> list[dict[str, np.ndarray]]:
+    """Every ``evaluations.npz`` below ``folder`` (one per seed)."""
+    paths = sorted(glob.glob(os.path.join(folder, "**", "evaluations.npz"), recursive=True))
+    if not paths:
+        raise FileNotFoundError(f"No evaluations.npz below {folder}")
+    return [dict(np.load(path)) for path in paths]
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average (the first points average what is there)."""
+    if window <= 1 or len(values) == 0:
+        return values
+    cumsum = np.cumsum(np.insert(values, 0, 0.0))
+    counts = np.minimum(np.arange(1, len(values) + 1), window)
+    starts = np.arange(1, len(values) + 1) - counts
+    return (cumsum[np.arange(1, len(values) + 1)] - cumsum[starts]) / counts
+
+
+def mean_and_band(curves: list[np.ndarray], confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over seeds and the half-width of the confidence interval of that mean (t-distribution)."""
+    length = min(len(c) for c in curves)
+    stacked = np.stack([c[:length] for c in curves])
+    mean = stacked.mean(axis=0)
+    if len(curves) < 2:
+        return mean, np.zeros_like(mean)
+    dof = len(curves) - 1
+    t = _T.get(confidence, {}).get(dof, _Z.get(confidence, 1.0))
+    return mean, t * stacked.std(axis=0, ddof=1) / np.sqrt(len(curves))
+
+
+def _x_axis(run: dict[str, np.ndarray]) -> np.ndarray:
+    return run["episodes"] if "episodes" in run else run["timesteps"] / 20
+
+
+def plot_curves(groups: list[str], output: str, window: int = 50, confidence: float = 0.75) -> None:
+    """Success rate and mean evaluation return against training episodes, one line per run group."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for folder in groups:
+        runs = load_group(folder)
+        label = f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)"
+        x = _x_axis(runs[0])
+        for ax, key in zip(axes, ("successes", "results")):
+            if not all(key in r for r in runs):
+                continue
+            curves = [smooth(r[key].mean(axis=1), window) for r in runs]
+            mean, band = mean_and_band(curves, confidence)
+            xs = x[: len(mean)]
+            ax.plot(xs, mean, label=label)
+            ax.fill_between(xs, mean - band, mean + band, alpha=0.25)
+    axes[0].set(xlabel="training episodes", ylabel="success rate", ylim=(-0.02, 1.02), title="Evaluation success rate")
+    axes[1].set(xlabel="training episodes", ylabel="mean return", title="Evaluation return")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"mean over seeds, {int(confidence * 100)}% confidence band, moving average of {window} evaluations")
+    fig.tight_layout()
+    fig.savefig(output, dpi=120)
+    plt.close(fig)
+
+
+def plot_collisions(groups: list[str], output: str, confidence: float = 0.75) -> None:
+    """Accumulated collisions during training against episodes (the paper's collision figure)."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for folder in groups:
+        runs = [r for r in load_group(folder) if "training_collisions" in r]
+        if not runs:
+            raise ValueError(f"{folder}: the evaluation files have no training_collisions (MultiAgentEvalCallback writes them)")
+        mean, band = mean_and_band([r["training_collisions"].astype(float) for r in runs], confidence)
+        xs = _x_axis(runs[0])[: len(mean)]
+        ax.plot(xs, mean, label=f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)")
+        ax.fill_between(xs, mean - band, mean + band, alpha=0.25)
+    ax.set(xlabel="training episodes", ylabel="accumulated collisions", title="Collisions during training")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(output, dpi=120)
+    plt.close(fig)
+
+
+def sweep_table(results_csv: str, row: str = "exploration.k", column: str = "exploration.beta") -> tuple[list, list, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean success rate and count-1 fraction over seeds for each (row, column) cell of a sweep."""
+    with open(results_csv) as file:
+        records = list(csv.DictReader(file))
+    if not records:
+        raise ValueError(f"{results_csv} holds no finished trials")
+    for name in (row, column):
+        if name not in records[0]:
+            raise ValueError(f"{results_csv} has no column '{name}' (columns: {list(records[0])})")
+    rows = sorted({float(r[row]) for r in records})
+    cols = sorted({float(r[column]) for r in records})
+    success = np.full((len(rows), len(cols)), np.nan)
+    count1 = np.full((len(rows), len(cols)), np.nan)
+    seeds = np.zeros((len(rows), len(cols)), dtype=int)
+    for i, rv in enumerate(rows):
+        for j, cv in enumerate(cols):
+            cell = [r for r in records if float(r[row]) == rv and float(r[column]) == cv]
+            if cell:
+                success[i, j] = np.mean([float(r["success_rate"]) for r in cell])
+                count1[i, j] = np.mean([float(r["count1_fraction"]) for r in cell])
+                seeds[i, j] = len(cell)
+    return rows, cols, success, count1, seeds
+
+
+def plot_table(results_csv: str, output: str, row: str = "exploration.k", column: str = "exploration.beta") -> str:
+    """The paper's Table 1 (success rate, count-1 %) as ``OUTPUT.md`` and a heatmap ``OUTPUT.png``."""
+    rows, cols, success, count1, seeds = sweep_table(results_csv, row, column)
+    fmt = lambda v: "%g" % v  # noqa: E731
+    lines = [f"| {row} \\ {column} | " + " | ".join(fmt(c) for c in cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for i, rv in enumerate(rows):
+        cells = [
+            "-" if np.isnan(success[i, j]) else f"{success[i, j]:.2f}, {100 * count1[i, j]:.0f}% (n={seeds[i, j]})"
+            for j in range(len(cols))
+        ]
+        lines.append(f"| {fmt(rv)} | " + " | ".join(cells) + " |")
+    markdown = "\n".join(lines) + "\n\ncells: success rate, count-1 percentage (n = seeds)\n"
+    with open(f"{output}.md", "w") as file:
+        file.write(markdown)
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    for ax, values, title, cmap in ((axes[0], success, "success rate", "viridis"), (axes[1], 100 * count1, "count-1 %", "magma")):
+        image = ax.imshow(values, cmap=cmap, aspect="auto", origin="lower")
+        ax.set_xticks(range(len(cols)), [fmt(c) for c in cols])
+        ax.set_yticks(range(len(rows)), [fmt(r) for r in rows])
+        ax.set(xlabel=column, ylabel=row, title=title)
+        for i in range(len(rows)):
+            for j in range(len(cols)):
+                if not np.isnan(values[i, j]):
+                    ax.text(j, i, f"{values[i, j]:.2f}" if title == "success rate" else f"{values[i, j]:.0f}",
+                            ha="center", va="center", color="w", fontsize=9)  # fmt: skip
+        fig.colorbar(image, ax=ax)
+    fig.tight_layout()
+    fig.savefig(f"{output}.png", dpi=120)
+    plt.close(fig)
+    return markdown
+
+
+def plot_simhash(output: str, ks: tuple[int, ...] = (8, 16, 32), n_points: int = 2000, seed: int = 0) -> None:
+    """The paper's Figure 2: random 2-D points in (-1, 1)^2 coloured by their SimHash code, for several k."""
+    from sb3_macb.exploration import SimHash
+
+    plt = _pyplot()
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1, 1, size=(n_points, 2)).astype(np.float32)
+    fig, axes = plt.subplots(1, len(ks), figsize=(4.2 * len(ks), 4.2))
+    for ax, k in zip(np.atleast_1d(axes), ks):
+        keys = SimHash(k, 2, np.random.default_rng(seed), decimals=None).keys(points)
+        _, groups = np.unique(keys, return_inverse=True)
+        colours = np.random.default_rng(1).permutation(groups.max() + 1)[groups]
+        ax.scatter(points[:, 0], points[:, 1], c=colours, cmap="hsv", s=6)
+        ax.set(title=f"k = {k}: {groups.max() + 1} codes", xlim=(-1, 1), ylim=(-1, 1), aspect="equal")
+    fig.suptitle(f"SimHash grouping of {n_points} random points (same colour = same code)")
+    fig.tight_layout()
+    fig.savefig(output, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="sb3-macb plot", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    curves = sub.add_parser("curves", help="success rate and return against episodes")
+    curves.add_argument("groups", nargs="+")
+    curves.add_argument("--smooth", type=int, default=50, help="moving average window, in evaluations")
+    curves.add_argument("--confidence", type=float, default=0.75)
+    curves.add_argument("-o", "--output", default="curves.png")
+    collisions = sub.add_parser("collisions", help="accumulated training collisions")
+    collisions.add_argument("groups", nargs="+")
+    collisions.add_argument("--confidence", type=float, default=0.75)
+    collisions.add_argument("-o", "--output", default="collisions.png")
+    table = sub.add_parser("table", help="the beta x k grid of a sweep (markdown and heatmap)")
+    table.add_argument("results")
+    table.add_argument("--row", default="exploration.k")
+    table.add_argument("--column", default="exploration.beta")
+    table.add_argument("-o", "--output", default="table", help="output prefix (.md and .png)")
+    simhash = sub.add_parser("simhash", help="the SimHash grouping figure")
+    simhash.add_argument("--k", type=int, nargs="+", default=[8, 16, 32])
+    simhash.add_argument("--points", type=int, default=2000)
+    simhash.add_argument("-o", "--output", default="simhash.png")
+    args = parser.parse_args(argv)
+    if args.what == "curves":
+        plot_curves(args.groups, args.output, args.smooth, args.confidence)
+    elif args.what == "collisions":
+        plot_collisions(args.groups, args.output, args.confidence)
+    elif args.what == "table":
+        print(plot_table(args.results, args.output, args.row, args.column))
+    else:
+        plot_simhash(args.output, tuple(args.k), args.points)
+    print(f"wrote {args.output}")

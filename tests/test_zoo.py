@@ -1,0 +1,212 @@
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+import yaml
+from optuna.trial import TrialState
+
+from sb3_macb import MADDPG
+from sb3_macb.zoo.plots import main as plot
+from sb3_macb.zoo.sweep import load_config
+from sb3_macb.zoo.train import DEFAULT_CONFIG, train
+
+COMM = "sb3_macb/CommunicativeNavigation-v0"
+TINY = ["--eval-freq", "50", "--eval-episodes", "2", "--no-progress", "--verbose", "0"]
+
+
+def run_train(tmp_path, *args, **kwargs):
+    return train(["--env", COMM, "-f", str(tmp_path / "logs"), "--seed", "0", *TINY, *args], **kwargs)
+
+
+def test_yaml_holds_the_papers_settings():
+    with open(DEFAULT_CONFIG) as file:
+        config = yaml.safe_load(file)
+    paper = config[COMM]
+    assert paper["policy_kwargs"] == "dict(net_arch=[400, 300])"
+    assert (paper["batch_size"], paper["learning_rate"], paper["gamma"], paper["tau"]) == (100, 0.001, 0.99, 0.005)
+    assert (paper["buffer_size"], paper["learning_starts"], paper["noise_std"]) == (1_000_000, 100, 0.1)
+    assert paper["exploration"] == {"beta": 0.8, "k": 512, "scope": "joint"}
+    assert config["sb3_macb/TwoAgentNavigation-v0"] == paper
+    assert {"maddpg", "ddpg", "macb_local", "macb_joint", "fast"} <= set(config["variants"])
+
+
+def test_tiny_train_run_from_yaml(tmp_path):
+    folder = run_train(tmp_path, "-n", "100", "--variant", "fast", "-params", "exploration.beta:0.3")
+    assert folder is not None and Path(folder).parent.name == "maddpg"
+    model = MADDPG.load(Path(folder) / f"{COMM.replace('/', '-')}.zip")
+    assert model.num_timesteps == 100
+    assert model.exploration.beta == 0.3 and model.exploration.k == 512  # dotted override on the YAML's dict
+    assert model.actor.mu.weights[1].shape[1:] == (64, 64)  # the fast variant
+    assert model.batch_size == 100 and model.lr_schedule(1) == 0.001
+    data = np.load(Path(folder) / "evaluations.npz")
+    assert list(data["timesteps"]) == [50, 100] and "successes" in data.files
+    saved = yaml.safe_load(open(Path(folder) / COMM.replace("/", "-") / "config.yml"))
+    assert saved is not None
+
+
+def test_variants_plain_maddpg_and_ddpg(tmp_path):
+    folder = run_train(tmp_path, "-n", "60", "--variant", "ddpg,fast")
+    model = MADDPG.load(Path(folder) / f"{COMM.replace('/', '-')}.zip")
+    assert model.exploration is None and model.centralized_critic is False
+
+
+def test_early_stop_from_yaml_callback(tmp_path):
+    config = yaml.safe_load(open(DEFAULT_CONFIG))
+    config[COMM]["callback"] = [{"sb3_macb.callbacks.StopTrainingOnSuccessRate": {"threshold": 0.9}}]
+    config[COMM]["policy_kwargs"] = "dict(net_arch=[32])"
+    path = tmp_path / "easy.yml"
+    path.write_text(yaml.safe_dump(config))
+    folder = run_train(tmp_path, "-n", "1000", "-conf", str(path), "--env-kwargs", "success_radius:100")
+    data = np.load(Path(folder) / "evaluations.npz")
+    assert list(data["timesteps"]) == [50]  # stopped after the first evaluation
+    model = MADDPG.load(Path(folder) / f"{COMM.replace('/', '-')}.zip")
+    assert model.num_timesteps == 50
+
+
+def test_unknown_yaml_key(tmp_path):
+    config = yaml.safe_load(open(DEFAULT_CONFIG))
+    config[COMM]["learnin_rate"] = 0.01
+    path = tmp_path / "bad.yml"
+    path.write_text(yaml.safe_dump(config))
+    with pytest.raises(ValueError, match=r"'learnin_rate' \(did you mean 'learning_rate'\?\)"):
+        run_train(tmp_path, "-n", "20", "-conf", str(path))
+
+
+def test_unknown_env_id_and_variant(tmp_path):
+    with pytest.raises(ValueError, match="not found in gym registry"):
+        train(["--env", "sb3_macb/CommunicativNavigation-v0", "-f", str(tmp_path), *TINY])
+    with pytest.raises(ValueError, match="Unknown variant 'fastest'"):
+        run_train(tmp_path, "-n", "20", "--variant", "fastest")
+
+
+# --- sweeps ---------------------------------------------------------------------------------------------------------
+
+
+def sweep_config(tmp_path, n_timesteps=60, betas=(0.2, 0.8), ks=(16, 32), seeds=(0,)):
+    config = {
+        "env": COMM,
+        "n_timesteps": n_timesteps,
+        "variant": "fast",
+        "hyperparams": {"learning_starts": 20, "batch_size": 16},
+        "eval_freq": 20,
+        "eval_episodes": 2,
+        "grid": {"exploration.beta": list(betas), "exploration.k": list(ks)},
+        "seeds": list(seeds),
+    }
+    path = tmp_path / "sweep.yml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def start_worker(config, storage, name, log_folder, heartbeat=30):
+    cmd = [sys.executable, "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", storage,
+           "--study-name", name, "-f", str(log_folder), "--heartbeat", str(heartbeat)]  # fmt: skip
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def check_grid_done_once(storage, name, n_points):
+    study = optuna.load_study(study_name=name, storage=storage)
+    done = [t for t in study.get_trials() if t.state == TrialState.COMPLETE]
+    points = [tuple(sorted(t.params.items())) for t in done]
+    assert len(points) == n_points and len(set(points)) == n_points, points
+    for trial in done:
+        assert 0.0 <= trial.user_attrs["success_rate"] <= 1.0
+        assert 0.0 < trial.user_attrs["count1_fraction"] <= 1.0
+        assert os.path.isfile(os.path.join(trial.user_attrs["run_folder"], "evaluations.npz"))
+    return study
+
+
+def run_two_workers(tmp_path, storage, name):
+    config = sweep_config(tmp_path)
+    workers = [start_worker(config, storage, name, tmp_path / "logs") for _ in range(2)]
+    outputs = [w.communicate(timeout=300)[0] for w in workers]
+    assert all(w.returncode == 0 for w in workers), outputs
+    study = check_grid_done_once(storage, name, 4)
+    results = (tmp_path / "logs" / name / "results.csv").read_text().splitlines()
+    assert len(results) == 5 and results[0].startswith("trial,exploration.beta,exploration.k,seed,success_rate")
+    return study
+
+
+def test_sweep_two_workers_sqlite(tmp_path):
+    run_two_workers(tmp_path, f"sqlite:///{tmp_path / 'sweep.db'}", "grid")
+
+
+def test_sweep_postgresql(tmp_path):
+    url = os.environ.get("SB3_MACB_TEST_POSTGRES_URL")
+    if not url:
+        pytest.skip("SB3_MACB_TEST_POSTGRES_URL is not set: no PostgreSQL server (.ci/run starts one with .ci/start-postgres.sh)")
+    try:
+        import sqlalchemy
+
+        sqlalchemy.create_engine(url).connect().close()
+    except Exception as exc:  # noqa: BLE001
+        pytest.skip(f"PostgreSQL at {url} cannot be reached: {exc}")
+    run_two_workers(tmp_path, url, f"grid_{os.getpid()}_{int(time.time())}")
+
+
+def test_killed_workers_trial_is_run_again(tmp_path):
+    storage = f"sqlite:///{tmp_path / 'sweep.db'}"
+    config = sweep_config(tmp_path, n_timesteps=4000, betas=(0.5,), ks=(16, 32))
+    victim = start_worker(config, storage, "kill", tmp_path / "logs", heartbeat=1)
+    deadline = time.time() + 120
+    while time.time() < deadline:  # wait until the victim has claimed a trial
+        try:
+            study = optuna.load_study(study_name="kill", storage=storage)
+            if any(t.state == TrialState.RUNNING for t in study.get_trials()):
+                break
+        except KeyError:
+            pass
+        time.sleep(0.5)
+    else:
+        victim.kill()
+        pytest.fail("the first worker never started a trial")
+    victim.send_signal(signal.SIGKILL)
+    victim.wait()
+    time.sleep(4)  # let its heartbeat go stale (grace period: 3 heartbeats)
+    rescuer = start_worker(config, storage, "kill", tmp_path / "logs", heartbeat=1)
+    output = rescuer.communicate(timeout=300)[0]
+    assert rescuer.returncode == 0, output
+    study = check_grid_done_once(storage, "kill", 2)
+    failed = [t for t in study.get_trials() if t.state == TrialState.FAIL]
+    assert len(failed) == 1  # the killed trial, failed and run again from the queue
+
+
+def test_sweep_config_errors(tmp_path):
+    path = tmp_path / "bad.yml"
+    path.write_text(yaml.safe_dump({"env": COMM, "grid": {"exploration.beta": [0.1]}, "seeds": [0], "n_timestep": 5}))
+    with pytest.raises(ValueError, match=r"unknown sweep config key\(s\) \['n_timestep'\]"):
+        load_config(str(path))
+    path.write_text(yaml.safe_dump({"env": COMM, "grid": {"exploratio.beta": [0.1]}, "seeds": [0]}))
+    with pytest.raises(ValueError, match="'exploratio.beta' is not a hyperparameter"):
+        load_config(str(path))
+
+
+# --- plots ----------------------------------------------------------------------------------------------------------
+
+
+def test_plots_from_a_small_run(tmp_path):
+    for seed in (0, 1):
+        train(["--env", "sb3_macb/TwoAgentNavigation-v0", "-f", str(tmp_path / "group" / f"seed_{seed}"), "--seed",
+               str(seed), "-n", "100", "--variant", "fast", *TINY[:2], "--eval-episodes", "2", "--no-progress",
+               "--verbose", "0", "--eval-freq", "20"])  # fmt: skip
+    outputs = {name: tmp_path / f"{name}.png" for name in ("curves", "collisions", "simhash")}
+    plot(["curves", str(tmp_path / "group"), "--smooth", "2", "-o", str(outputs["curves"])])
+    plot(["collisions", str(tmp_path / "group"), "-o", str(outputs["collisions"])])
+    plot(["simhash", "--points", "300", "-o", str(outputs["simhash"])])
+    results = tmp_path / "results.csv"
+    results.write_text(
+        "trial,exploration.beta,exploration.k,seed,success_rate,count1_fraction,run_folder\n"
+        "0,0.2,32,0,0.5,0.9,a\n1,0.2,32,1,0.7,0.8,b\n2,0.8,32,0,1.0,1.0,c\n"
+    )
+    plot(["table", str(results), "-o", str(tmp_path / "table")])
+    outputs["table"] = tmp_path / "table.png"
+    for path in outputs.values():
+        assert path.stat().st_size > 10_000 and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    table = (tmp_path / "table.md").read_text()
+    assert "| 32 | 0.60, 85% (n=2) | 1.00, 100% (n=1) |" in table
