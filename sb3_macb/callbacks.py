@@ -11,14 +11,30 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
 
-def _eval_success_rate(parent: BaseCallback | None, name: str) -> float | None:
-    if not isinstance(parent, EvalCallback):
-        raise TypeError(f"{name} must be used as callback_after_eval of an EvalCallback (e.g. MultiAgentEvalCallback)")
-    buffer = parent._is_success_buffer
-    return float(np.mean(buffer)) if buffer else None
+class _SuccessRateStop(BaseCallback):
+    """Base of the early-stopping rules: reads the success rate of the evaluation that just ran."""
+
+    parent: EvalCallback
+
+    def __init__(self, min_evals: int, verbose: int):
+        super().__init__(verbose=verbose)
+        self.min_evals = min_evals
+        self.n_evals = 0
+
+    def _should_stop(self, success_rate: float) -> bool:
+        raise NotImplementedError
+
+    def _on_step(self) -> bool:
+        if not isinstance(self.parent, EvalCallback):
+            raise TypeError(
+                f"{type(self).__name__} must be used as callback_after_eval of an EvalCallback (e.g. MultiAgentEvalCallback)"
+            )
+        self.n_evals += 1
+        buffer = self.parent._is_success_buffer  # filled by the evaluation from the episodes' info["is_success"]
+        return not buffer or not self._should_stop(float(np.mean(buffer)))
 
 
-class StopTrainingOnSuccessRate(BaseCallback):
+class StopTrainingOnSuccessRate(_SuccessRateStop):
     """
     Stop training once the evaluation success rate reaches a threshold.
 
@@ -30,28 +46,20 @@ class StopTrainingOnSuccessRate(BaseCallback):
     :param verbose: Verbosity level: 0 no output, 1 a message when stopping.
     """
 
-    parent: EvalCallback
-
     def __init__(self, threshold: float, min_evals: int = 1, verbose: int = 0):
-        super().__init__(verbose=verbose)
+        super().__init__(min_evals=min_evals, verbose=verbose)
         if not 0.0 <= threshold <= 1.0:
             raise ValueError(f"threshold is a success rate in [0, 1], got {threshold}")
         self.threshold = threshold
-        self.min_evals = min_evals
-        self.n_evals = 0
 
-    def _on_step(self) -> bool:
-        success_rate = _eval_success_rate(self.parent, type(self).__name__)
-        self.n_evals += 1
-        if success_rate is None:
-            return True
+    def _should_stop(self, success_rate: float) -> bool:
         stop = self.n_evals >= self.min_evals and success_rate >= self.threshold
         if stop and self.verbose >= 1:
             print(f"Stopping training: success rate {success_rate:.2f} >= {self.threshold} after {self.n_evals} evaluations")
-        return not stop
+        return stop
 
 
-class StopTrainingOnNoSuccessImprovement(BaseCallback):
+class StopTrainingOnNoSuccessImprovement(_SuccessRateStop):
     """
     Stop training when the evaluation success rate has not improved for ``max_no_improvement_evals`` evaluations.
 
@@ -62,23 +70,15 @@ class StopTrainingOnNoSuccessImprovement(BaseCallback):
     :param verbose: Verbosity level: 0 no output, 1 a message when stopping.
     """
 
-    parent: EvalCallback
-
     def __init__(self, max_no_improvement_evals: int, min_evals: int = 0, verbose: int = 0):
-        super().__init__(verbose=verbose)
+        super().__init__(min_evals=min_evals, verbose=verbose)
         if max_no_improvement_evals < 1:
             raise ValueError(f"max_no_improvement_evals must be >= 1, got {max_no_improvement_evals}")
         self.max_no_improvement_evals = max_no_improvement_evals
-        self.min_evals = min_evals
         self.best_success_rate = -np.inf
         self.no_improvement_evals = 0
-        self.n_evals = 0
 
-    def _on_step(self) -> bool:
-        success_rate = _eval_success_rate(self.parent, type(self).__name__)
-        self.n_evals += 1
-        if success_rate is None:
-            return True
+    def _should_stop(self, success_rate: float) -> bool:
         if success_rate > self.best_success_rate:
             self.best_success_rate = success_rate
             self.no_improvement_evals = 0
@@ -87,7 +87,7 @@ class StopTrainingOnNoSuccessImprovement(BaseCallback):
         stop = self.no_improvement_evals >= self.max_no_improvement_evals
         if stop and self.verbose >= 1:
             print(f"Stopping training: no success rate improvement in {self.no_improvement_evals} evaluations")
-        return not stop
+        return stop
 
 
 class _CallbackList(BaseCallback):

@@ -45,6 +45,24 @@ class TaskScenario(BaseScenario):
     def is_terminal(self, world: World) -> bool:
         return self.terminate_on_success and self.success(world)
 
+    @staticmethod
+    def _add_landmarks(world: World, n: int, size: float) -> None:
+        world.landmarks = [Landmark() for _ in range(n)]
+        for i, landmark in enumerate(world.landmarks):
+            landmark.name = f"landmark {i}"
+            landmark.collide = False
+            landmark.movable = False
+            landmark.size = size
+
+    @staticmethod
+    def _place_randomly(world: World, np_random: Any) -> None:
+        """Every entity uniformly in [-1, 1]^2, at rest, silent."""
+        for entity in world.entities:
+            entity.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
+            entity.state.p_vel = np.zeros(world.dim_p)
+        for agent in world.agents:
+            agent.state.c = np.zeros(world.dim_c)
+
 
 def _overlapping_pairs(agents: list[Agent]) -> int:
     count = 0
@@ -89,24 +107,15 @@ class TwoAgentNavigationScenario(TaskScenario):
             agent.collide = True
             agent.silent = True
             agent.size = self.size
-        world.landmarks = [Landmark() for _ in range(self.n_landmarks)]
-        for i, landmark in enumerate(world.landmarks):
-            landmark.name = f"landmark {i}"
-            landmark.collide = False
-            landmark.movable = False
-            landmark.size = self.size
+        self._add_landmarks(world, self.n_landmarks, self.size)
         return world
 
     def reset_world(self, world: World, np_random: Any) -> None:
         for agent in world.agents:
             agent.color = np.array([0.35, 0.35, 0.85])
-            agent.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
-            agent.state.p_vel = np.zeros(world.dim_p)
-            agent.state.c = np.zeros(world.dim_c)
         for landmark in world.landmarks:
             landmark.color = np.array([0.25, 0.25, 0.25])
-            landmark.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
-            landmark.state.p_vel = np.zeros(world.dim_p)
+        self._place_randomly(world, np_random)
 
     def _nearest_distances(self, world: World) -> np.ndarray:
         agents = np.array([a.state.p_pos for a in world.agents])
@@ -172,12 +181,7 @@ class CommunicativeNavigationScenario(TaskScenario):
         for agent in world.agents:
             agent.collide = False
             agent.size = self.size
-        world.landmarks = [Landmark() for _ in range(3)]
-        for i, landmark in enumerate(world.landmarks):
-            landmark.name = f"landmark {i}"
-            landmark.collide = False
-            landmark.movable = False
-            landmark.size = self.size
+        self._add_landmarks(world, 3, self.size)
         return world
 
     def reset_world(self, world: World, np_random: Any) -> None:
@@ -187,13 +191,7 @@ class CommunicativeNavigationScenario(TaskScenario):
         for agent in world.agents:
             agent.color = np.array([0.25, 0.25, 0.25])
         world.agents[1].color = self.goal.color + 0.45
-        for agent in world.agents:
-            agent.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
-            agent.state.p_vel = np.zeros(world.dim_p)
-            agent.state.c = np.zeros(world.dim_c)
-        for landmark in world.landmarks:
-            landmark.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
-            landmark.state.p_vel = np.zeros(world.dim_p)
+        self._place_randomly(world, np_random)
 
     def _goal_distance(self, world: World) -> float:
         assert self.goal is not None

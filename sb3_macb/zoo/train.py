@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 import sb3_macb.envs  # noqa: F401  (registers the task ids)
-from sb3_macb.callbacks import MultiAgentEvalCallback, StopTrainingOnNoSuccessImprovement, StopTrainingOnSuccessRate
+from sb3_macb.callbacks import MultiAgentEvalCallback, _CallbackList, _SuccessRateStop
 from sb3_macb.maddpg import MADDPG
 
 DEFAULT_CONFIG = str(Path(__file__).parent / "hyperparams" / "maddpg.yml")
@@ -130,14 +130,12 @@ def _experiment_manager_class() -> type:
             super().create_callbacks()  # progress bar, checkpoints
             self.eval_freq = eval_freq
             MultiAgentExperimentManager.last_save_path = self.save_path
-            stoppers = [c for c in self.callbacks if isinstance(c, (StopTrainingOnSuccessRate, StopTrainingOnNoSuccessImprovement))]
+            stoppers = [c for c in self.callbacks if isinstance(c, _SuccessRateStop)]
             self.callbacks = [c for c in self.callbacks if c not in stoppers]
             if self.eval_freq > 0 and not self.optimize_hyperparameters:
                 self.eval_freq = max(self.eval_freq // self.n_envs, 1)
                 after_eval = None
                 if stoppers:
-                    from sb3_macb.callbacks import _CallbackList
-
                     after_eval = stoppers[0] if len(stoppers) == 1 else _CallbackList(stoppers)
                 self.callbacks.append(
                     MultiAgentEvalCallback(
