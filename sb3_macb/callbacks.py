@@ -299,11 +299,12 @@ class MultiAgentEvalCallback(EvalCallback):
         return continue_training
 
     def save_evaluations(self) -> None:
-        """Write ``evaluations.npz`` (SB3's fields plus the multi-agent ones)."""
+        """Write ``evaluations.npz`` (SB3's fields plus the multi-agent ones), compressed."""
         if self.log_path is None or not self.evaluations_timesteps:
             return
         successes = self.evaluations_successes if all(self.evaluations_successes) else []
-        np.savez(
+        # compressed: read back by np.load like SB3's file, a fraction of the size for long runs
+        np.savez_compressed(
             self.log_path,
             timesteps=self.evaluations_timesteps,
             results=self.evaluations_results,
