@@ -58,7 +58,8 @@ def main() -> None:
     model.save(f"{args.log_dir}/model.zip")
 
     data = np.load(f"{args.log_dir}/evaluations.npz")
-    print(f"\n{args.env} {env_kwargs or ''} {'MADDPG' if args.no_macb else 'MADDPG + MACB'}, seed {args.seed}")
+    setting = " ".join(f"{k}={v}" for k, v in env_kwargs.items())
+    print(f"\n{args.env} {setting} {'MADDPG' if args.no_macb else 'MADDPG + MACB'}, seed {args.seed}".replace("  ", " "))
     print(f"{args.timesteps} steps in {elapsed:.0f} s ({args.timesteps / elapsed:.0f} steps/s)")
     print("| steps | episodes | success rate (10 eval episodes) | mean return |")
     print("|---|---|---|---|")
