@@ -262,3 +262,13 @@ def test_cuda_matches_cpu(tmp_path):
     obs = np.random.default_rng(0).normal(size=(5, 3)).astype(np.float32)
     np.testing.assert_allclose(model.predict(obs, deterministic=True)[0], cpu.predict(obs, deterministic=True)[0], atol=1e-5)
     assert cpu.exploration.total_count == 40
+
+
+def test_set_env_refuses_other_agents():
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0)
+    env_before = model.env
+    with pytest.raises(ValueError, match="spaces do not match|agents do not match"):
+        model.set_env(speaker_listener())
+    assert model.env is env_before
+    model.set_env(make_joint_env(Rendezvous()))
+    assert model.env is not env_before

@@ -1,6 +1,5 @@
 from typing import Any, ClassVar, TypeVar
 
-import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
@@ -13,7 +12,7 @@ from stable_baselines3.td3 import TD3
 from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
 from sb3_macb.exploration.macb import MACB
-from sb3_macb.maddpg.policies import MADDPGPolicy, MlpPolicy, MultiAgentActor, MultiAgentCritic
+from sb3_macb.maddpg.policies import MADDPGPolicy, MlpPolicy, MultiAgentActor, MultiAgentCritic, _block_mask
 
 SelfMADDPG = TypeVar("SelfMADDPG", bound="MADDPG")
 
@@ -198,9 +197,7 @@ class MADDPG(TD3):
             self.policy_kwargs, self.replay_buffer_kwargs = user_policy_kwargs, user_buffer_kwargs
 
         # Agent i's slice of the joint action, to put its actor's action into its own critic's input
-        masks = np.zeros((layout.n_agents, 1, layout.action_dim), dtype=np.float32)
-        for i, sl in enumerate(layout.action_slices):
-            masks[i, 0, sl] = 1.0
+        masks = _block_mask(layout.action_slices, layout.action_dim)[:, None, :]
         self._action_masks = th.as_tensor(masks, device=self.device)
         self._actor_params = list(self.actor.parameters())
         self._actor_target_params = list(self.actor_target.parameters())
@@ -208,8 +205,9 @@ class MADDPG(TD3):
         self._critic_target_params = list(self.critic_target.parameters())
 
     def set_env(self, env: GymEnv | Any, force_reset: bool = True) -> None:
+        env = self._wrap_env(env, self.verbose)
+        self._check_layout(env)  # before SB3 adopts the env, so a mismatched one is refused, not half-set
         super().set_env(env, force_reset=force_reset)
-        self._check_layout(self.env)  # type: ignore[arg-type]
 
     def load_replay_buffer(self, path: Any, truncate_last_traj: bool = True) -> None:
         super().load_replay_buffer(path, truncate_last_traj)

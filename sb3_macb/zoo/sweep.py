@@ -100,19 +100,21 @@ def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name
     marker_name = f"{name}.grid"
     try:
         marker = optuna.create_study(study_name=marker_name, storage=storage)
+        first = True
     except optuna.exceptions.DuplicatedStudyError:
-        marker = optuna.load_study(study_name=marker_name, storage=storage)
-        for _ in range(600):  # another worker is putting the grid in the queue
-            if "n_points" in marker.user_attrs:
-                break
-            time.sleep(0.1)
-            marker = optuna.load_study(study_name=marker_name, storage=storage)
-        if marker.user_attrs.get("n_points") not in (None, len(points)):
-            raise ValueError(f"Study '{name}' was started with another grid ({marker.user_attrs['n_points']} points)")
+        first = False
+    if first:
+        for point in points:
+            study.enqueue_trial(point, user_attrs={"grid_point": True})
+        marker.set_user_attr("n_points", len(points))
         return
-    for point in points:
-        study.enqueue_trial(point, user_attrs={"grid_point": True})
-    marker.set_user_attr("n_points", len(points))
+    for _ in range(600):  # another worker is putting the grid in the queue
+        marker = optuna.load_study(study_name=marker_name, storage=storage)
+        if "n_points" in marker.user_attrs:
+            break
+        time.sleep(0.1)
+    if marker.user_attrs.get("n_points") not in (None, len(points)):
+        raise ValueError(f"Study '{name}' was started with another grid ({marker.user_attrs['n_points']} points)")
 
 
 def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -> tuple[float, float, str]:

@@ -1,0 +1,77 @@
+"""
+Summarize ``results/<Task>-<reward>/<variant>/seed_<s>/`` as markdown: episodes to a success-rate threshold (mean and
+spread over seeds), final success rate, wall time per run, and the commands that produced them.
+
+    python scripts/summarize_results.py results/CommunicativeNavigation-sparse
+
+Episodes to threshold: the first evaluation at which the success rate averaged over the last ``--window``
+evaluations (10 evaluations = 100 evaluation episodes by default) reaches the threshold; a run that never reaches it
+counts as its whole budget (marked with ">").
+"""
+
+import argparse
+import glob
+import json
+import os
+
+import numpy as np
+
+
+def episodes_to(successes: np.ndarray, episodes: np.ndarray, threshold: float, window: int) -> tuple[float, bool]:
+    rate = successes.mean(axis=1)
+    moving = np.convolve(rate, np.ones(window) / window, mode="valid")
+    hits = np.flatnonzero(moving >= threshold)
+    if len(hits):
+        return float(episodes[hits[0] + window - 1]), True
+    return float(episodes[-1]), False
+
+
+def summarize(task_folder: str, threshold: float, window: int, final: int) -> str:
+    lines = [
+        f"| variant | seeds | episodes to {threshold:.0%} success (mean +/- std) | per seed | final success rate "
+        f"(last {final} evals, mean +/- std) | wall time per run |",
+        "|---|---|---|---|---|---|",
+    ]
+    commands = []
+    for variant in sorted(os.listdir(task_folder)):
+        runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", "evaluations.npz")))
+        if not runs:
+            continue
+        reached, per_seed, finals, walls = [], [], [], []
+        for path in runs:
+            data = np.load(path)
+            value, ok = episodes_to(data["successes"], data["episodes"], threshold, window)
+            reached.append(value)
+            per_seed.append(f"{value:.0f}" if ok else f">{value:.0f}")
+            finals.append(float(data["successes"][-final:].mean()))
+            meta_path = os.path.join(os.path.dirname(path), "run.json")
+            if os.path.isfile(meta_path):
+                meta = json.load(open(meta_path))
+                walls.append(meta["wall_time_s"])
+                commands.append(meta["command"])
+        wall = f"{np.mean(walls) / 60:.1f} min" if walls else "-"
+        lines.append(
+            f"| {variant} | {len(runs)} | {np.mean(reached):.0f} +/- {np.std(reached):.0f} | {', '.join(per_seed)} | "
+            f"{np.mean(finals):.2f} +/- {np.std(finals):.2f} | {wall} |"
+        )
+    text = "\n".join(lines)
+    if commands:
+        text += "\n\nCommands (one per run):\n\n```\n" + "\n".join(sorted(set(commands))) + "\n```\n"
+    return text
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("task_folders", nargs="+")
+    parser.add_argument("--threshold", type=float, default=0.9)
+    parser.add_argument("--window", type=int, default=10)
+    parser.add_argument("--final", type=int, default=50)
+    args = parser.parse_args()
+    for folder in args.task_folders:
+        print(f"### {os.path.basename(os.path.normpath(folder))}\n")
+        print(summarize(folder, args.threshold, args.window, args.final))
+        print()
+
+
+if __name__ == "__main__":
+    main()
