@@ -86,14 +86,30 @@ def grid_points(config: dict[str, Any]) -> list[dict[str, Any]]:
     return points
 
 
-def make_storage(url: str, heartbeat_interval: int) -> optuna.storages.RDBStorage:
-    """An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers."""
-    return optuna.storages.RDBStorage(
-        url,
-        heartbeat_interval=heartbeat_interval,
-        grace_period=3 * heartbeat_interval,
-        failed_trial_callback=optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=3),
-    )
+def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optuna.storages.RDBStorage:
+    """
+    An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers.
+
+    Workers started together on a new database race to create its tables; the losers retry after a short pause,
+    when the tables exist.
+    """
+    import random
+
+    from sqlalchemy.exc import SQLAlchemyError
+
+    for attempt in range(attempts):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                retry = optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=3)
+            return optuna.storages.RDBStorage(
+                url, heartbeat_interval=heartbeat_interval, grace_period=3 * heartbeat_interval, failed_trial_callback=retry
+            )
+        except SQLAlchemyError:
+            if attempt == attempts - 1:
+                raise
+            time.sleep(0.2 + random.random())
+    raise AssertionError("unreachable")
 
 
 def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name: str, points: list[dict]) -> None:
