@@ -46,7 +46,8 @@ def summarize(task_folder: str, threshold: float, window: int, final: int) -> st
             finals.append(float(data["successes"][-final:].mean()))
             meta_path = os.path.join(os.path.dirname(path), "run.json")
             if os.path.isfile(meta_path):
-                meta = json.load(open(meta_path))
+                with open(meta_path) as file:
+                    meta = json.load(file)
                 walls.append(meta["wall_time_s"])
                 commands.append(meta["command"])
         wall = f"{np.mean(walls) / 60:.1f} min" if walls else "-"

@@ -11,7 +11,7 @@ listener (``listener_0``, observation 11: velocity, the three landmarks relative
 
 from typing import Any
 
-from sb3_macb.envs.tasks import CommunicativeNavigationScenario, TaskParallelEnv, make_parallel_env, to_aec
+from sb3_macb.envs.tasks import CommunicativeNavigationScenario, TaskParallelEnv, to_aec
 
 NAME = "communicative_navigation_v0"
 
@@ -35,7 +35,7 @@ def parallel_env(
     :return: The parallel environment (``env()`` gives the AEC version).
     """
     scenario = CommunicativeNavigationScenario(reward, reward_radius, success_radius, terminate_on_success)
-    return make_parallel_env(scenario, max_cycles, render_mode, NAME)
+    return TaskParallelEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=NAME)
 
 
 def env(**kwargs: Any) -> Any:

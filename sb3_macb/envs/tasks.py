@@ -356,11 +356,6 @@ class TaskParallelEnv(ParallelEnv):
         self.task_env.close()
 
 
-def make_parallel_env(scenario: TaskScenario, max_cycles: int, render_mode: str | None, name: str) -> TaskParallelEnv:
-    """The task as a native ParallelEnv."""
-    return TaskParallelEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
-
-
 def to_aec(env: TaskParallelEnv) -> Any:
     """The AEC version of a task's parallel env (PettingZoo's conversion)."""
     from pettingzoo.utils.conversions import parallel_to_aec

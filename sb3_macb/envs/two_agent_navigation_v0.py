@@ -10,7 +10,7 @@ position, both landmarks and the other agent relative to it. Action: a 2-D force
 
 from typing import Any
 
-from sb3_macb.envs.tasks import TwoAgentNavigationScenario, TaskParallelEnv, make_parallel_env, to_aec
+from sb3_macb.envs.tasks import TwoAgentNavigationScenario, TaskParallelEnv, to_aec
 
 NAME = "two_agent_navigation_v0"
 
@@ -33,7 +33,7 @@ def parallel_env(
     :return: The parallel environment (``env()`` gives the AEC version).
     """
     scenario = TwoAgentNavigationScenario(reward_radius, success_radius, collision_penalty, terminate_on_success)
-    return make_parallel_env(scenario, max_cycles, render_mode, NAME)
+    return TaskParallelEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=NAME)
 
 
 def env(**kwargs: Any) -> Any:

@@ -1,5 +1,6 @@
 """MACB: Multi-Agent Count-Based exploration with SimHash (the paper's section 4 and Algorithm 1)."""
 
+import inspect
 from typing import Any
 
 import numpy as np
@@ -92,7 +93,7 @@ class MACB:
             return config
         if not isinstance(config, dict):
             raise TypeError(f"exploration must be an MACB, a dict of MACB arguments, or None; got {type(config).__name__}")
-        known = {"beta", "k", "scope", "seed", "decimals"}
+        known = set(inspect.signature(cls.__init__).parameters) - {"self"}
         unknown = sorted(set(config) - known)
         if unknown:
             raise ValueError(f"Unknown MACB option(s) {unknown}; known options are {sorted(known)}")
