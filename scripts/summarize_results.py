@@ -6,7 +6,9 @@ spread over seeds), final success rate, wall time per run, and the commands that
 
 Episodes to threshold: the first evaluation at which the success rate averaged over the last ``--window``
 evaluations (10 evaluations = 100 evaluation episodes by default) reaches the threshold; a run that never reaches it
-counts as its whole budget (marked with ">").
+counts as its whole budget (marked with ">"). ``--max-episodes`` cuts every run at that many training episodes, to
+compare runs of different lengths at one budget (a run's first N episodes are the run it would have been with that
+budget: the same seed gives the same run, and nothing in the settings depends on the total budget).
 """
 
 import argparse
@@ -26,7 +28,17 @@ def episodes_to(successes: np.ndarray, episodes: np.ndarray, threshold: float, w
     return float(episodes[-1]), False
 
 
-def summarize(task_folder: str, threshold: float, window: int, final: int) -> str:
+def load_run(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray]:
+    """An ``evaluations.npz`` as a dict of arrays, cut at ``max_episodes`` training episodes if given."""
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    if max_episodes is not None:
+        keep = arrays["episodes"] <= max_episodes
+        arrays = {name: (a[keep] if a.ndim and len(a) == len(keep) else a) for name, a in arrays.items()}
+    return arrays
+
+
+def summarize(task_folder: str, threshold: float, window: int, final: int, max_episodes: int | None = None) -> str:
     lines = [
         f"| variant | seeds | episodes to {threshold:.0%} success (mean +/- std) | per seed | final success rate "
         f"(last {final} evals, mean +/- std) | wall time per run |",
@@ -39,7 +51,7 @@ def summarize(task_folder: str, threshold: float, window: int, final: int) -> st
             continue
         reached, per_seed, finals, walls = [], [], [], []
         for path in runs:
-            data = np.load(path)
+            data = load_run(path, max_episodes)
             value, ok = episodes_to(data["successes"], data["episodes"], threshold, window)
             reached.append(value)
             per_seed.append(f"{value:.0f}" if ok else f">{value:.0f}")
@@ -67,10 +79,11 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=0.9)
     parser.add_argument("--window", type=int, default=10)
     parser.add_argument("--final", type=int, default=50)
+    parser.add_argument("--max-episodes", type=int, default=None, help="cut every run at this many training episodes")
     args = parser.parse_args()
     for folder in args.task_folders:
         print(f"### {os.path.basename(os.path.normpath(folder))}\n")
-        print(summarize(folder, args.threshold, args.window, args.final))
+        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes))
         print()
 
 

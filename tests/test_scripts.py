@@ -1,0 +1,90 @@
+"""The result scripts under scripts/: episodes to a threshold, cutting runs at a budget, filing a sweep."""
+
+import csv
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sb3_macb.exploration import MACB
+from sb3_macb.zoo.plots import sweep_table
+from sb3_macb.zoo.sweep import load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def write_run(path: Path, rates: list[float]) -> None:
+    """An evaluations.npz with one evaluation per training episode and 10 episodes per evaluation."""
+    successes = np.array([[i < round(10 * r) for i in range(10)] for r in rates], dtype=bool)
+    episodes = np.arange(1, len(rates) + 1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, timesteps=20 * episodes, episodes=episodes, successes=successes,
+             results=np.zeros((len(rates), 10)), count1_fraction=np.full(len(rates), 0.5))  # fmt: skip
+
+
+def test_episodes_to_threshold_uses_the_moving_average():
+    summary = load_script("summarize_results")
+    rates = np.array([0.0] * 5 + [1.0] * 5)
+    successes = np.stack([np.arange(10) < 10 * r for r in rates])
+    episodes = np.arange(1, 11) * 7
+    # the 4-evaluation average first reaches 0.75 at the 8th evaluation (three of the last four are 1.0)
+    assert summary.episodes_to(successes, episodes, 0.75, 4) == (56.0, True)
+    assert summary.episodes_to(successes, episodes, 0.75, 1) == (42.0, True)
+    # never reached: the whole budget, flagged
+    assert summary.episodes_to(successes, episodes, 1.01, 1) == (70.0, False)
+
+
+def test_max_episodes_cuts_every_per_evaluation_array(tmp_path):
+    summary = load_script("summarize_results")
+    write_run(tmp_path / "v" / "seed_0" / "evaluations.npz", [0.1] * 6 + [0.9] * 4)
+    data = summary.load_run(str(tmp_path / "v" / "seed_0" / "evaluations.npz"), max_episodes=6)
+    assert len(data["episodes"]) == len(data["successes"]) == len(data["timesteps"]) == 6
+    assert data["successes"].mean() == pytest.approx(0.1)
+    table = summary.summarize(str(tmp_path), threshold=0.5, window=1, final=2, max_episodes=6)
+    assert "| v | 1 | 6 +/- 0 | >6 |" in table
+    assert "0.10 +/- 0.00" in table
+    assert "| v | 1 | 7 +/- 0 | 7 |" in summary.summarize(str(tmp_path), threshold=0.5, window=1, final=2)
+
+
+def test_file_sweep_copies_the_evaluations_and_keeps_the_table(tmp_path):
+    sweep = tmp_path / "logs" / "study"
+    rows = []
+    for trial, (beta, k) in enumerate([(0.2, 32), (0.8, 32), (0.2, 512)]):
+        run = sweep / f"trial_{trial}" / "run"
+        write_run(run / "evaluations.npz", [beta] * 3)
+        rows.append({"trial": trial, "exploration.beta": beta, "exploration.k": k, "seed": 0,
+                     "success_rate": beta, "count1_fraction": k / 1000, "run_folder": str(run)})  # fmt: skip
+    with open(sweep / "results.csv", "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    out = tmp_path / "results" / "table"
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "file_sweep.py"), str(sweep), str(out)],
+                          capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert (out / "beta_0.8_k_32" / "seed_0" / "evaluations.npz").is_file()
+    with open(out / "results.csv", newline="") as file:
+        filed = list(csv.DictReader(file))
+    assert [r["run_folder"] for r in filed] == ["beta_0.2_k_32/seed_0", "beta_0.8_k_32/seed_0", "beta_0.2_k_512/seed_0"]
+    rows_, cols, success, count1, seeds = sweep_table(str(out / "results.csv"))
+    assert rows_ == [32, 512] and cols == [0.2, 0.8]
+    assert success[0, 1] == pytest.approx(0.8) and np.isnan(success[1, 1]) and count1[1, 0] == pytest.approx(0.512)
+
+
+@pytest.mark.parametrize("name", ["table1.yml", "table1_fast.yml"])
+def test_table1_sweep_configs_are_valid(name):
+    config = load_config(str(ROOT / "zoo" / "sweeps" / name))
+    assert config["grid"] == {"exploration.beta": [0.05, 0.2, 0.4, 0.8], "exploration.k": [32, 64, 256, 512]}
+    for beta in config["grid"]["exploration.beta"]:
+        for k in config["grid"]["exploration.k"]:
+            MACB(beta=beta, k=k)  # every cell is a valid MACB
