@@ -13,7 +13,8 @@ from optuna.trial import TrialState
 
 from sb3_macb import MADDPG
 from sb3_macb.zoo.plots import main as plot
-from sb3_macb.zoo.sweep import load_config
+from sb3_macb.zoo import sweep as sweep_module
+from sb3_macb.zoo.sweep import load_config, make_storage
 from sb3_macb.zoo.train import DEFAULT_CONFIG, train
 
 COMM = "sb3_macb/CommunicativeNavigation-v0"
@@ -135,6 +136,29 @@ def run_two_workers(tmp_path, storage, name):
 
 def test_sweep_two_workers_sqlite(tmp_path):
     run_two_workers(tmp_path, f"sqlite:///{tmp_path / 'sweep.db'}", "grid")
+
+
+def test_sweep_waits_for_a_locked_sqlite_database(tmp_path):
+    """A worker that finds the database locked by another writer for longer than SQLite's default 5 s still joins."""
+    import sqlite3
+    import threading
+
+    url = f"sqlite:///{tmp_path / 'sweep.db'}"
+    make_storage(url, heartbeat_interval=30)  # the tables exist, as when another worker got there first
+    holder = sqlite3.connect(tmp_path / "sweep.db", check_same_thread=False)
+    holder.execute("BEGIN EXCLUSIVE")
+    release = threading.Timer(6.0, holder.commit)
+    release.start()
+    try:
+        start = time.time()
+        storage = make_storage(url, heartbeat_interval=30)
+        study = sweep_module._with_retries(lambda: optuna.create_study(study_name="locked", storage=storage))
+        waited = time.time() - start
+    finally:
+        release.join()
+        holder.close()
+    assert study.study_name == "locked"
+    assert waited >= 5.0  # it did wait for the lock rather than find the database free
 
 
 def test_sweep_postgresql(tmp_path):

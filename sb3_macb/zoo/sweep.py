@@ -34,12 +34,14 @@ import itertools
 import os
 import time
 import warnings
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 import optuna
 import yaml
 from optuna.trial import TrialState
+
+T = TypeVar("T")
 
 CONFIG_KEYS = {
     "algo", "env", "n_timesteps", "variant", "hyperparams", "grid", "seeds", "eval_freq", "eval_episodes",
@@ -86,12 +88,13 @@ def grid_points(config: dict[str, Any]) -> list[dict[str, Any]]:
     return points
 
 
-def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optuna.storages.RDBStorage:
+def _with_retries(action: Callable[[], T], attempts: int = 10) -> T:
     """
-    An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers.
+    Run a storage action, retrying transient database errors.
 
-    Workers started together on a new database race to create its tables; the losers retry after a short pause,
-    when the tables exist.
+    Workers that start together on a new database race to create its tables and studies; on SQLite a writer may
+    also find the file locked by another. The losers retry after a short random pause. Optuna's own outcomes, such
+    as ``DuplicatedStudyError``, are not retried.
     """
     import random
 
@@ -99,23 +102,38 @@ def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optun
 
     for attempt in range(attempts):
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                retry = optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=3)
-            return optuna.storages.RDBStorage(
-                url, heartbeat_interval=heartbeat_interval, grace_period=3 * heartbeat_interval, failed_trial_callback=retry
-            )
-        except SQLAlchemyError:
+            return action()
+        except (SQLAlchemyError, optuna.exceptions.StorageInternalError):
             if attempt == attempts - 1:
                 raise
             time.sleep(0.2 + random.random())
     raise AssertionError("unreachable")
 
 
+def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optuna.storages.RDBStorage:
+    """
+    An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers.
+
+    On SQLite, a worker waits up to a minute for another's write lock (Python's default is 5 s, which a busy
+    machine exceeds).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        retry = optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=3)
+    engine_kwargs = {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else None
+    return _with_retries(
+        lambda: optuna.storages.RDBStorage(
+            url, engine_kwargs=engine_kwargs, heartbeat_interval=heartbeat_interval,
+            grace_period=3 * heartbeat_interval, heartbeat_stale_trial_callback=retry,
+        ),
+        attempts,
+    )  # fmt: skip
+
+
 def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name: str, points: list[dict]) -> None:
     marker_name = f"{name}.grid"
     try:
-        marker = optuna.create_study(study_name=marker_name, storage=storage)
+        marker = _with_retries(lambda: optuna.create_study(study_name=marker_name, storage=storage))
         first = True
     except optuna.exceptions.DuplicatedStudyError:
         first = False
@@ -187,7 +205,9 @@ def work(config_path: str, storage_url: str, study_name: str, log_folder: str, h
     config = load_config(config_path)
     points = grid_points(config)
     storage = make_storage(storage_url, heartbeat)
-    study = optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
+    study = _with_retries(
+        lambda: optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
+    )
     _enqueue_once(storage, study, study_name, points)
     grid = config["grid"]
 
