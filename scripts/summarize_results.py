@@ -38,24 +38,28 @@ def load_run(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray
     return arrays
 
 
-def summarize(task_folder: str, threshold: float, window: int, final: int, max_episodes: int | None = None) -> str:
+def summarize(
+    task_folder: str, threshold: float, window: int, final: int, max_episodes: int | None = None, collisions: bool = False
+) -> str:
     lines = [
         f"| variant | seeds | episodes to {threshold:.0%} success (mean +/- std) | per seed | final success rate "
-        f"(last {final} evals, mean +/- std) | wall time per run |",
-        "|---|---|---|---|---|---|",
+        f"(last {final} evals, mean +/- std) | wall time per run |" + (" training collisions (mean +/- std) |" if collisions else ""),
+        "|---|---|---|---|---|---|" + ("---|" if collisions else ""),
     ]
     commands = []
     for variant in sorted(os.listdir(task_folder)):
         runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", "evaluations.npz")))
         if not runs:
             continue
-        reached, per_seed, finals, walls = [], [], [], []
+        reached, per_seed, finals, walls, crashes = [], [], [], [], []
         for path in runs:
             data = load_run(path, max_episodes)
             value, ok = episodes_to(data["successes"], data["episodes"], threshold, window)
             reached.append(value)
             per_seed.append(f"{value:.0f}" if ok else f">{value:.0f}")
             finals.append(float(data["successes"][-final:].mean()))
+            if collisions:
+                crashes.append(float(data["training_collisions"][-1]))
             meta_path = os.path.join(os.path.dirname(path), "run.json")
             if os.path.isfile(meta_path):
                 with open(meta_path) as file:
@@ -66,6 +70,7 @@ def summarize(task_folder: str, threshold: float, window: int, final: int, max_e
         lines.append(
             f"| {variant} | {len(runs)} | {np.mean(reached):.0f} +/- {np.std(reached):.0f} | {', '.join(per_seed)} | "
             f"{np.mean(finals):.2f} +/- {np.std(finals):.2f} | {wall} |"
+            + (f" {np.mean(crashes):.0f} +/- {np.std(crashes):.0f} |" if collisions else "")
         )
     text = "\n".join(lines)
     if commands:
@@ -79,11 +84,12 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=0.9)
     parser.add_argument("--window", type=int, default=10)
     parser.add_argument("--final", type=int, default=50)
+    parser.add_argument("--collisions", action="store_true", help="add the accumulated training collisions")
     parser.add_argument("--max-episodes", type=int, default=None, help="cut every run at this many training episodes")
     args = parser.parse_args()
     for folder in args.task_folders:
         print(f"### {os.path.basename(os.path.normpath(folder))}\n")
-        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes))
+        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes, args.collisions))
         print()
 
 

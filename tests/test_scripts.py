@@ -29,7 +29,8 @@ def write_run(path: Path, rates: list[float]) -> None:
     episodes = np.arange(1, len(rates) + 1)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, timesteps=20 * episodes, episodes=episodes, successes=successes,
-             results=np.zeros((len(rates), 10)), count1_fraction=np.full(len(rates), 0.5))  # fmt: skip
+             results=np.zeros((len(rates), 10)), count1_fraction=np.full(len(rates), 0.5),
+             training_collisions=3 * episodes)  # fmt: skip
 
 
 def test_episodes_to_threshold_uses_the_moving_average():
@@ -54,6 +55,8 @@ def test_max_episodes_cuts_every_per_evaluation_array(tmp_path):
     assert "| v | 1 | 6 +/- 0 | >6 |" in table
     assert "0.10 +/- 0.00" in table
     assert "| v | 1 | 7 +/- 0 | 7 |" in summary.summarize(str(tmp_path), threshold=0.5, window=1, final=2)
+    with_collisions = summary.summarize(str(tmp_path), 0.5, 1, 2, max_episodes=6, collisions=True)
+    assert with_collisions.splitlines()[2].endswith("| 18 +/- 0 |")  # accumulated at the cut: 3 per episode
 
 
 def test_file_sweep_copies_the_evaluations_and_keeps_the_table(tmp_path):
