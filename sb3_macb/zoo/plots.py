@@ -164,11 +164,13 @@ def plot_table(results_csv: str, output: str, row: str = "exploration.k", column
         ax.set_xticks(range(len(cols)), [fmt(c) for c in cols])
         ax.set_yticks(range(len(rows)), [fmt(r) for r in rows])
         ax.set(xlabel=column, ylabel=row, title=title)
+        low, high = np.nanmin(values), np.nanmax(values)
         for i in range(len(rows)):
             for j in range(len(cols)):
                 if not np.isnan(values[i, j]):
+                    bright = high > low and (values[i, j] - low) / (high - low) > 0.6  # dark text on light cells
                     ax.text(j, i, f"{values[i, j]:.2f}" if title == "success rate" else f"{values[i, j]:.0f}",
-                            ha="center", va="center", color="w", fontsize=9)  # fmt: skip
+                            ha="center", va="center", color="k" if bright else "w", fontsize=9)  # fmt: skip
         fig.colorbar(image, ax=ax)
     fig.tight_layout()
     fig.savefig(f"{output}.png", dpi=120)
