@@ -5,7 +5,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
@@ -90,22 +90,6 @@ class StopTrainingOnNoSuccessImprovement(_SuccessRateStop):
         return stop
 
 
-class _CallbackList(BaseCallback):
-    """Several after-evaluation callbacks; training stops when any asks to."""
-
-    def __init__(self, callbacks: list[BaseCallback]):
-        super().__init__()
-        self.callbacks = callbacks
-
-    def _init_callback(self) -> None:
-        for callback in self.callbacks:
-            callback.init_callback(self.model)
-            callback.parent = self.parent
-
-    def _on_step(self) -> bool:
-        return all([callback.on_step() for callback in self.callbacks])
-
-
 class MultiAgentEvalCallback(EvalCallback):
     """
     SB3's ``EvalCallback`` for multi-agent runs, as the paper evaluates: every ``eval_freq`` steps (20 = one
@@ -167,7 +151,7 @@ class MultiAgentEvalCallback(EvalCallback):
             after_eval.append(StopTrainingOnSuccessRate(stop_success_rate, min_evals=min_evals, verbose=verbose))
         if stop_patience is not None:
             after_eval.append(StopTrainingOnNoSuccessImprovement(stop_patience, min_evals=min_evals, verbose=verbose))
-        combined = after_eval[0] if len(after_eval) == 1 else (_CallbackList(after_eval) if after_eval else None)
+        combined = after_eval[0] if len(after_eval) == 1 else (CallbackList(after_eval) if after_eval else None)
         super().__init__(
             eval_env,
             callback_on_new_best=callback_on_new_best,

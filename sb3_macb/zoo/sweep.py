@@ -116,6 +116,10 @@ def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optun
 
     On SQLite, a worker waits up to a minute for another's write lock (Python's default is 5 s, which a busy
     machine exceeds).
+
+    :param url: ``sqlite:///...`` or ``postgresql://...``.
+    :param heartbeat_interval: Seconds between heartbeats; a trial silent for 3 intervals is failed and retried.
+    :param attempts: Tries at connecting (and creating the tables) before giving up.
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)

@@ -20,9 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.common.callbacks import CallbackList
 
 import sb3_macb.envs  # noqa: F401  (registers the task ids)
-from sb3_macb.callbacks import MultiAgentEvalCallback, _CallbackList, _SuccessRateStop
+from sb3_macb.callbacks import MultiAgentEvalCallback, _SuccessRateStop
 from sb3_macb.maddpg import MADDPG
 
 DEFAULT_CONFIG = str(Path(__file__).parent / "hyperparams" / "maddpg.yml")
@@ -136,7 +137,7 @@ def _experiment_manager_class() -> type:
                 self.eval_freq = max(self.eval_freq // self.n_envs, 1)
                 after_eval = None
                 if stoppers:
-                    after_eval = stoppers[0] if len(stoppers) == 1 else _CallbackList(stoppers)
+                    after_eval = stoppers[0] if len(stoppers) == 1 else CallbackList(stoppers)
                 self.callbacks.append(
                     MultiAgentEvalCallback(
                         self.create_envs(self.n_eval_episodes, eval_env=True),
