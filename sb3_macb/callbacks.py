@@ -10,6 +10,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
+from sb3_macb.common.atomic import atomic_write
+
 
 class _SuccessRateStop(BaseCallback):
     """Base of the early-stopping rules: reads the success rate of the evaluation that just ran."""
@@ -90,6 +92,30 @@ class StopTrainingOnNoSuccessImprovement(_SuccessRateStop):
         return stop
 
 
+# The fields of evaluations.npz beyond SB3's (timesteps, results, ep_lengths), one entry per evaluation
+RECORD_FIELDS = (
+    "timesteps", "results", "ep_lengths", "successes", "final_successes", "episodes", "agent_returns", "collisions",
+    "num_codes", "count1_fraction", "training_collisions",
+)  # fmt: skip
+
+
+def make_eval_vec_env(
+    env_id: str, n_eval_episodes: int, seeds: list[int | None], env_kwargs: dict[str, Any] | None = None
+) -> VecEnv:
+    """
+    The evaluation env of one run or of a pack: ``n_eval_episodes`` envs per run (one evaluation = one batch of
+    episodes), run ``k``'s ``i``-th env seeded ``seeds[k] + i`` (as SB3's ``make_vec_env(seed=...)`` seeds them).
+
+    :param env_id: A registered env id.
+    :param n_eval_episodes: Episodes per evaluation and run.
+    :param seeds: One seed per run (None: unseeded).
+    :param env_kwargs: Keyword arguments for the env.
+    """
+    env = make_vec_env(env_id, n_envs=n_eval_episodes * len(seeds), env_kwargs=env_kwargs)
+    env._seeds = [None if seed is None else seed + i for seed in seeds for i in range(n_eval_episodes)]
+    return env
+
+
 class MultiAgentEvalCallback(EvalCallback):
     """
     SB3's ``EvalCallback`` for multi-agent runs, as the paper evaluates: every ``eval_freq`` steps (20 = one
@@ -98,30 +124,36 @@ class MultiAgentEvalCallback(EvalCallback):
     Each evaluation records the success rate, the team return, every agent's return, the collisions and, with
     MACB, the number of codes and the count-1 fraction. They are logged through SB3's logger (``eval/...``,
     ``exploration/...``) and saved in SB3's ``evaluations.npz`` format (``timesteps``, ``results``, ``ep_lengths``,
-    ``successes``) plus ``episodes``, ``agent_returns``, ``collisions``, ``num_codes``, ``count1_fraction`` and
-    ``training_collisions`` (accumulated collisions during training so far).
+    ``successes``) plus ``final_successes`` (the success condition holds at the episode's last step),
+    ``episodes``, ``agent_returns``, ``collisions``, ``num_codes``, ``count1_fraction`` and ``training_collisions``
+    (accumulated collisions during training so far). The file is replaced atomically.
     The best model is kept by success rate (ties: mean return). Collisions during training are summed and
     logged as ``rollout/collisions_total``.
 
+    For a pack (``MADDPG(n_runs=K)``) the eval env holds ``n_eval_episodes`` envs per run (run ``k``'s envs one
+    after another, see :func:`make_eval_vec_env`); every run gets its own records and its own file
+    (``run_log_paths[k]/evaluations.npz``); the logged values are means over the runs.
+
     :param eval_env: The evaluation env: a VecEnv, a gymnasium env, or an env id (a DummyVecEnv of
-        ``n_eval_episodes`` copies is built, so that an evaluation is one batch of episodes).
-    :param n_eval_episodes: Episodes per evaluation.
+        ``n_eval_episodes`` copies per run is built, so that an evaluation is one batch of episodes).
+    :param n_eval_episodes: Episodes per evaluation (and run).
     :param eval_freq: Evaluate every ``eval_freq`` calls (environment steps per env).
     :param log_path: Folder for ``evaluations.npz`` (None: not saved).
-    :param best_model_save_path: Folder for ``best_model.zip`` (None: not saved).
+    :param best_model_save_path: Folder for ``best_model.zip`` (None: not saved; not available for packs).
     :param save_freq: Write ``evaluations.npz`` every this many evaluations (and at the end of training): SB3
         rewrites it at every evaluation, which at the paper's protocol (40,000 evaluations) is quadratic I/O.
     :param deterministic: Evaluate the deterministic policy (no action noise).
     :param stop_success_rate: Stop training once the success rate reaches this value (None: never).
     :param stop_patience: Stop training after this many evaluations without a new best success rate (None: never).
     :param min_evals: Evaluations before either stopping rule applies.
-    :param callback_after_eval: Another callback to run after every evaluation.
+    :param callback_after_eval: Another callback to run after every evaluation (not for packs).
     :param callback_on_new_best: A callback to run when a new best model is found.
     :param env_kwargs: Keyword arguments for the env when ``eval_env`` is an env id.
-    :param seed: Seed of the eval env when it is built from an env id.
+    :param seed: Seed of the eval env when it is built from an env id (for a pack: the model's run seeds).
     :param dump_logs: Dump the logger after each evaluation (as SB3 does).
     :param verbose: Verbosity level.
     :param warn: Warn when the eval env is not wrapped with a Monitor.
+    :param run_log_paths: For a pack: one folder per run for its ``evaluations.npz`` (instead of ``log_path``).
     """
 
     def __init__(
@@ -143,9 +175,12 @@ class MultiAgentEvalCallback(EvalCallback):
         dump_logs: bool = True,
         verbose: int = 1,
         warn: bool = True,
+        run_log_paths: list[str] | None = None,
     ):
+        self._env_id = eval_env if isinstance(eval_env, str) else None
+        self._env_kwargs = env_kwargs
         if isinstance(eval_env, str):
-            eval_env = make_vec_env(eval_env, n_envs=n_eval_episodes, seed=seed, env_kwargs=env_kwargs)
+            eval_env = make_eval_vec_env(eval_env, n_eval_episodes, [seed], env_kwargs)
         after_eval = [c for c in [callback_after_eval] if c is not None]
         if stop_success_rate is not None:
             after_eval.append(StopTrainingOnSuccessRate(stop_success_rate, min_evals=min_evals, verbose=verbose))
@@ -168,45 +203,137 @@ class MultiAgentEvalCallback(EvalCallback):
             raise ValueError(f"save_freq must be >= 1, got {save_freq}")
         self.save_freq = save_freq
         self.dump_logs = dump_logs
+        self.run_log_paths = run_log_paths
         self.best_success_rate = -np.inf
         self.last_success_rate: float | None = None
-        self.training_collisions = 0
-        self.evaluations_episodes: list[int] = []
-        self.evaluations_agent_returns: list[np.ndarray] = []
-        self.evaluations_collisions: list[list[int]] = []
-        self.evaluations_num_codes: list[int] = []
-        self.evaluations_count1: list[float] = []
-        self.evaluations_training_collisions: list[int] = []
-        self._episode_agent_returns: list[np.ndarray] = []
-        self._episode_collisions: list[int] = []
+        self.n_runs = 1
+        self.records: list[dict[str, list]] = []
+        self.run_episodes: np.ndarray | None = None  # training episodes completed, per run
+        self.run_training_collisions: np.ndarray | None = None
+        self._env_episodes: list[list[dict[str, Any]]] = []
         self._running_returns: np.ndarray | None = None
         self._running_collisions: np.ndarray | None = None
+        self._new_records(1)
+
+    def _new_records(self, n_runs: int) -> None:
+        self.n_runs = n_runs
+        self.records = [{name: [] for name in RECORD_FIELDS} for _ in range(n_runs)]
+        self._alias_records()
+
+    def _alias_records(self) -> None:
+        # SB3's attribute names (and the package's earlier ones) for the first run's records
+        first = self.records[0]
+        self.evaluations_timesteps = first["timesteps"]
+        self.evaluations_results = first["results"]
+        self.evaluations_length = first["ep_lengths"]
+        self.evaluations_successes = first["successes"]
+        self.evaluations_final_successes = first["final_successes"]
+        self.evaluations_episodes = first["episodes"]
+        self.evaluations_agent_returns = first["agent_returns"]
+        self.evaluations_collisions = first["collisions"]
+        self.evaluations_num_codes = first["num_codes"]
+        self.evaluations_count1 = first["count1_fraction"]
+        self.evaluations_training_collisions = first["training_collisions"]
+
+    @property
+    def training_collisions(self) -> int:
+        """Collisions during training so far (summed over the runs of a pack)."""
+        return 0 if self.run_training_collisions is None else int(self.run_training_collisions.sum())
+
+    def _init_callback(self) -> None:
+        n_runs = int(getattr(self.model, "n_runs", 1))
+        if n_runs != self.n_runs:
+            if self.evaluations_timesteps:
+                raise ValueError("This callback already holds evaluations of a model with another number of runs")
+            self._new_records(n_runs)
+            if self._env_id is not None:
+                seeds = getattr(self.model, "run_seeds", None) or [None] * n_runs
+                self.eval_env = make_eval_vec_env(self._env_id, self.n_eval_episodes, seeds, self._env_kwargs)
+        if n_runs > 1:
+            if self.callback is not None or self.best_model_save_path is not None:
+                raise ValueError("Early stopping and best-model saving work on one run, not on a pack of runs")
+            if self.eval_env.num_envs % n_runs:
+                raise ValueError(f"A pack of {n_runs} runs needs an eval env with n envs per run, got {self.eval_env.num_envs}")
+            if self.run_log_paths is not None and len(self.run_log_paths) != n_runs:
+                raise ValueError(f"run_log_paths needs one folder per run ({n_runs}), got {len(self.run_log_paths)}")
+        if self.run_episodes is None:
+            self.run_episodes = np.full(n_runs, int(getattr(self.model, "_episode_num", 0)) // n_runs, dtype=np.int64)
+            self.run_training_collisions = np.zeros(n_runs, dtype=np.int64)
+        super()._init_callback()
+        for path in self.run_log_paths or []:
+            os.makedirs(path, exist_ok=True)
+
+    # --- checkpoints: what the callback has recorded so far -------------------------------------------------------
+
+    def get_state(self) -> dict[str, Any]:
+        """The records and counters, for a checkpoint (see :meth:`set_state`)."""
+        return {
+            "records": self.records,
+            "n_calls": self.n_calls,
+            "num_timesteps": self.num_timesteps,
+            "run_episodes": self.run_episodes,
+            "run_training_collisions": self.run_training_collisions,
+            "best": (self.best_success_rate, self.best_mean_reward),
+            "last": (self.last_success_rate, self.last_mean_reward),
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Continue from what :meth:`get_state` returned."""
+        self.records = state["records"]
+        self.n_runs = len(self.records)
+        self._alias_records()
+        self.n_calls = state["n_calls"]
+        self.num_timesteps = state["num_timesteps"]
+        self.run_episodes = state["run_episodes"]
+        self.run_training_collisions = state["run_training_collisions"]
+        self.best_success_rate, self.best_mean_reward = state["best"]
+        self.last_success_rate, self.last_mean_reward = state["last"]
 
     # --- per step of an evaluation (evaluate_policy's callback) ----------------------------------------------------
 
     def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
-        super()._log_success_callback(locals_, globals_)
         i, info = locals_["i"], locals_["info"]
         agent_rewards = info.get("agent_rewards")
         if self._running_returns is None:
             n_agents = 0 if agent_rewards is None else len(agent_rewards)
             self._running_returns = np.zeros((self.eval_env.num_envs, n_agents))
             self._running_collisions = np.zeros(self.eval_env.num_envs, dtype=np.int64)
+            self._running_team = np.zeros(self.eval_env.num_envs)
+            self._running_length = np.zeros(self.eval_env.num_envs, dtype=np.int64)
         if agent_rewards is not None:
             self._running_returns[i] += agent_rewards
         assert self._running_collisions is not None
         self._running_collisions[i] += _collisions(info)
+        self._running_team[i] += locals_["reward"]
+        self._running_length[i] += 1
         if locals_["done"]:
-            self._episode_agent_returns.append(self._running_returns[i].copy())
-            self._episode_collisions.append(int(self._running_collisions[i]))
+            episode = info.get("episode")
+            self._env_episodes[i].append(
+                {
+                    "return": float(episode["r"]) if episode else float(self._running_team[i]),
+                    "length": int(episode["l"]) if episode else int(self._running_length[i]),
+                    "success": info.get("is_success"),
+                    "final_success": _final_success(info),
+                    "agent_returns": self._running_returns[i].copy(),
+                    "collisions": int(self._running_collisions[i]),
+                }
+            )
             self._running_returns[i] = 0.0
             self._running_collisions[i] = 0
+            self._running_team[i] = 0.0
+            self._running_length[i] = 0
 
     # --- per training step -------------------------------------------------------------------------------------------
 
     def _on_step(self) -> bool:
-        for info in self.locals.get("infos", ()):
-            self.training_collisions += _collisions(info)
+        assert self.run_episodes is not None and self.run_training_collisions is not None
+        infos, dones = self.locals.get("infos", ()), self.locals.get("dones")
+        if infos:
+            per_run = len(infos) // self.n_runs
+            for e, info in enumerate(infos):
+                self.run_training_collisions[e // per_run] += _collisions(info)
+            if dones is not None:
+                self.run_episodes += np.asarray(dones, dtype=np.int64).reshape(self.n_runs, per_run).sum(axis=1)
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
         return self._evaluate()
@@ -214,97 +341,148 @@ class MultiAgentEvalCallback(EvalCallback):
     def _evaluate(self) -> bool:
         if self.model.get_vec_normalize_env() is not None:
             sync_envs_normalization(self.training_env, self.eval_env)
-        self._is_success_buffer = []
-        self._episode_agent_returns, self._episode_collisions = [], []
+        n_envs = self.eval_env.num_envs
+        self._env_episodes = [[] for _ in range(n_envs)]
         self._running_returns = None
-        episode_rewards, episode_lengths = evaluate_policy(
+        evaluate_policy(
             self.model,
             self.eval_env,
-            n_eval_episodes=self.n_eval_episodes,
+            n_eval_episodes=self.n_eval_episodes * self.n_runs,
             deterministic=self.deterministic,
             return_episode_rewards=True,
             warn=self.warn,
             callback=self._log_success_callback,
         )
-        assert isinstance(episode_rewards, list) and isinstance(episode_lengths, list)
-        mean_reward = float(np.mean(episode_rewards))
-        success_rate = float(np.mean(self._is_success_buffer)) if self._is_success_buffer else None
-        self.last_mean_reward = mean_reward
-        self.last_success_rate = success_rate
-        exploration = getattr(self.model, "exploration", None)
-
-        self.evaluations_timesteps.append(self.num_timesteps)
-        # training episodes completed (SB3 counts the episodes that end at this step only after the callbacks)
-        ended_now = int(np.sum(self.locals.get("dones", 0)))
-        self.evaluations_episodes.append(int(getattr(self.model, "_episode_num", 0)) + ended_now)
-        self.evaluations_results.append(episode_rewards)
-        self.evaluations_length.append(episode_lengths)
-        self.evaluations_successes.append(list(self._is_success_buffer))
-        self.evaluations_agent_returns.append(np.array(self._episode_agent_returns))
-        self.evaluations_collisions.append(self._episode_collisions)
-        self.evaluations_num_codes.append(exploration.num_codes if exploration is not None else 0)
-        self.evaluations_count1.append(exploration.count1_fraction if exploration is not None else 0.0)
-        self.evaluations_training_collisions.append(self.training_collisions)
+        explorations = getattr(self.model, "explorations", [None] * self.n_runs)
+        per_run = n_envs // self.n_runs
+        run_rates, run_returns = [], []
+        for run, record in enumerate(self.records):
+            episodes = [ep for env in range(run * per_run, (run + 1) * per_run) for ep in self._env_episodes[env]]
+            successes = [ep["success"] for ep in episodes if ep["success"] is not None]
+            exploration = explorations[run]
+            record["timesteps"].append(self.num_timesteps // self.n_runs)
+            record["results"].append([ep["return"] for ep in episodes])
+            record["ep_lengths"].append([ep["length"] for ep in episodes])
+            record["successes"].append(successes)
+            record["final_successes"].append([ep["final_success"] for ep in episodes if ep["final_success"] is not None])
+            record["episodes"].append(int(self.run_episodes[run]))  # type: ignore[index]
+            record["agent_returns"].append(np.array([ep["agent_returns"] for ep in episodes]))
+            record["collisions"].append([ep["collisions"] for ep in episodes])
+            record["num_codes"].append(exploration.num_codes if exploration is not None else 0)
+            record["count1_fraction"].append(exploration.count1_fraction if exploration is not None else 0.0)
+            record["training_collisions"].append(int(self.run_training_collisions[run]))  # type: ignore[index]
+            run_rates.append(float(np.mean(successes)) if successes else None)
+            run_returns.append(float(np.mean(record["results"][-1])))
         if len(self.evaluations_timesteps) % self.save_freq == 0:
             self.save_evaluations()
 
+        # what SB3's EvalCallback and the stopping rules read (for a pack: means over the runs)
+        self._is_success_buffer = list(self.records[0]["successes"][-1]) if self.n_runs == 1 else []
+        mean_reward = float(np.mean(run_returns))
+        success_rate = None if any(r is None for r in run_rates) else float(np.mean(run_rates))  # type: ignore[arg-type]
+        self.last_mean_reward = mean_reward
+        self.last_success_rate = success_rate
+        last = [record for record in self.records]
         self.logger.record("eval/mean_reward", mean_reward)
-        self.logger.record("eval/mean_ep_length", float(np.mean(episode_lengths)))
+        self.logger.record("eval/mean_ep_length", float(np.mean([np.mean(r["ep_lengths"][-1]) for r in last])))
         if success_rate is not None:
             self.logger.record("eval/success_rate", success_rate)
-        if self._episode_agent_returns:
-            returns = np.mean(self._episode_agent_returns, axis=0)
+            finals = [np.mean(r["final_successes"][-1]) for r in last if r["final_successes"][-1]]
+            if finals:
+                self.logger.record("eval/final_success_rate", float(np.mean(finals)))
+        agent_returns = [r["agent_returns"][-1] for r in last if len(r["agent_returns"][-1])]
+        if agent_returns:
+            returns = np.mean(np.concatenate(agent_returns), axis=0)
             layout = getattr(self.model, "agent_layout", None)
             names = layout.agents if layout is not None else [str(i) for i in range(len(returns))]
             for name, value in zip(names, returns):
                 self.logger.record(f"eval/return_{name}", float(value))
-        self.logger.record("eval/collisions", float(np.mean(self._episode_collisions)))
+        self.logger.record("eval/collisions", float(np.mean([np.mean(r["collisions"][-1]) for r in last])))
         self.logger.record("rollout/collisions_total", self.training_collisions)
-        if exploration is not None:
-            self.logger.record("exploration/num_codes", exploration.num_codes)
-            self.logger.record("exploration/count1_percent", 100.0 * exploration.count1_fraction)
+        with_macb = [e for e in explorations if e is not None]
+        if with_macb:
+            self.logger.record("exploration/num_codes", float(np.mean([e.num_codes for e in with_macb])))
+            self.logger.record("exploration/count1_percent", 100.0 * float(np.mean([e.count1_fraction for e in with_macb])))
         if self.verbose >= 1:
             rate = "n/a" if success_rate is None else f"{success_rate:.2f}"
-            print(f"Eval num_timesteps={self.num_timesteps}, success rate {rate}, return {mean_reward:.2f}")
+            runs = "" if self.n_runs == 1 else f" (mean of {self.n_runs} runs)"
+            print(f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}, return {mean_reward:.2f}{runs}")
         if self.dump_logs:
             self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
             self.logger.dump(self.num_timesteps)
 
         continue_training = True
-        score = -np.inf if success_rate is None else success_rate
-        if (score, mean_reward) > (self.best_success_rate, self.best_mean_reward):
-            self.best_success_rate, self.best_mean_reward = score, mean_reward
-            if self.best_model_save_path is not None:
-                self.model.save(os.path.join(self.best_model_save_path, "best_model"))
-            if self.callback_on_new_best is not None:
-                continue_training = self.callback_on_new_best.on_step()
-        if self.callback is not None:
-            continue_training = continue_training and self._on_event()
+        if self.n_runs == 1:
+            score = -np.inf if success_rate is None else success_rate
+            if (score, mean_reward) > (self.best_success_rate, self.best_mean_reward):
+                self.best_success_rate, self.best_mean_reward = score, mean_reward
+                if self.best_model_save_path is not None:
+                    self.model.save(os.path.join(self.best_model_save_path, "best_model"))
+                if self.callback_on_new_best is not None:
+                    continue_training = self.callback_on_new_best.on_step()
+            if self.callback is not None:
+                continue_training = continue_training and self._on_event()
         return continue_training
 
+    def _run_file(self, run: int) -> str | None:
+        if self.run_log_paths is not None:
+            return os.path.join(self.run_log_paths[run], "evaluations.npz")
+        if self.log_path is None:
+            return None
+        if self.n_runs == 1:
+            return self.log_path + ".npz"
+        return os.path.join(os.path.dirname(self.log_path), f"run_{run}", "evaluations.npz")
+
     def save_evaluations(self) -> None:
-        """Write ``evaluations.npz`` (SB3's fields plus the multi-agent ones), compressed."""
-        if self.log_path is None or not self.evaluations_timesteps:
-            return
-        successes = self.evaluations_successes if all(self.evaluations_successes) else []
-        # compressed: read back by np.load like SB3's file, a fraction of the size for long runs
-        np.savez_compressed(
-            self.log_path,
-            timesteps=self.evaluations_timesteps,
-            results=self.evaluations_results,
-            ep_lengths=self.evaluations_length,
-            **({"successes": successes} if successes else {}),
-            episodes=self.evaluations_episodes,
-            agent_returns=np.array(self.evaluations_agent_returns),
-            collisions=self.evaluations_collisions,
-            num_codes=self.evaluations_num_codes,
-            count1_fraction=self.evaluations_count1,
-            training_collisions=self.evaluations_training_collisions,
-        )
+        """Write each run's ``evaluations.npz`` (SB3's fields plus the multi-agent ones), compressed and atomically."""
+        for run, record in enumerate(self.records):
+            path = self._run_file(run)
+            if path is not None and record["timesteps"]:
+                save_evaluations_file(path, record)
 
     def _on_training_end(self) -> None:
         self.save_evaluations()
         super()._on_training_end()
+
+
+def save_evaluations_file(path: str, record: dict[str, list]) -> None:
+    """
+    Write one run's records as ``evaluations.npz``: SB3's fields (``timesteps``, ``results``, ``ep_lengths``,
+    ``successes``) and the multi-agent ones, compressed (read back by ``np.load`` like SB3's file, a fraction of its
+    size for long runs), through a temporary file renamed over ``path``.
+
+    :param path: The file to write.
+    :param record: The lists of :data:`RECORD_FIELDS`, one entry per evaluation.
+    """
+    arrays: dict[str, Any] = {
+        "timesteps": record["timesteps"],
+        "results": record["results"],
+        "ep_lengths": record["ep_lengths"],
+    }
+    for name in ("successes", "final_successes"):
+        if all(record[name]):  # only where every evaluation reported them
+            arrays[name] = record[name]
+    arrays.update(
+        episodes=record["episodes"],
+        agent_returns=np.array(record["agent_returns"]),
+        collisions=record["collisions"],
+        num_codes=record["num_codes"],
+        count1_fraction=record["count1_fraction"],
+        training_collisions=record["training_collisions"],
+    )
+    with atomic_write(path) as file:
+        np.savez_compressed(file, **arrays)
+
+
+def _final_success(info: dict[str, Any]) -> bool | None:
+    """Whether the success condition holds at this (last) step, from the first agent's info (None if not reported)."""
+    agent_infos = info.get("agent_infos")
+    if not agent_infos:
+        return None
+    first = next(iter(agent_infos.values()))
+    if not isinstance(first, dict) or "success" not in first:
+        return None
+    return bool(first["success"])
 
 
 def _collisions(info: dict[str, Any]) -> int:

@@ -60,14 +60,14 @@ def test_policy_shapes_and_independence():
     obs = th.randn(5, 3, requires_grad=True)
     act = th.randn(5, 3, requires_grad=True)
     q = critic(obs, act)
-    assert q.shape == (1, 2, 5)
-    q[0, 0].sum().backward()  # agent a's independent critic reads only agent a's observation and action
+    assert q.shape == (1, 1, 2, 5)  # (critics, runs, agents, batch)
+    q[0, 0, 0].sum().backward()  # agent a's independent critic reads only agent a's observation and action
     assert obs.grad[:, 1:].abs().sum() == 0 and act.grad[:, 1:].abs().sum() == 0
     assert obs.grad[:, 0].abs().sum() > 0
 
     model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0)
     obs = th.randn(5, 3, requires_grad=True)
-    model.critic(obs, th.randn(5, 3))[0, 0].sum().backward()  # centralized: sees everything
+    model.critic(obs, th.randn(5, 3))[0, 0, 0].sum().backward()  # centralized: sees everything
     assert (obs.grad.abs().sum(dim=0) > 0).all()
     obs = th.randn(5, 3, requires_grad=True)
     model.actor(obs)[:, 0].sum().backward()  # agent a's actor reads only its own observation

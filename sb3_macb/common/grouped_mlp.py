@@ -156,6 +156,13 @@ class GroupedMLP(nn.Module):
     :param activation_fn: Activation between layers.
     :param sum_groups: Return the sum over groups, (batch, out_dim), instead of (G, batch, out_dim). With
         disjoint output masks this assembles one joint output vector.
+    :param group_runs: (G,) the run each group belongs to, when several independent runs share the stacked
+        tensors (see :class:`~sb3_macb.MADDPG`'s ``n_runs``); None: all groups are one run.
+    :param generators: One ``torch.Generator`` per run to draw its groups' initial weights from, so that a run's
+        weights do not depend on which other runs are packed with it. None: torch's global generator.
+    :param group_blocks: (G,) block id of each group: consecutive groups of one id form a block that the
+        optimizer updates as a tensor of its own (see :class:`~sb3_macb.common.block_adam.BlockAdam`). Default:
+        ``group_runs``.
     """
 
     use_onednn: bool = True  # class-wide switch; the oneDNN path is taken only where it applies
@@ -167,6 +174,9 @@ class GroupedMLP(nn.Module):
         out_mask: np.ndarray,
         activation_fn: type[nn.Module] = nn.ReLU,
         sum_groups: bool = False,
+        group_runs: np.ndarray | None = None,
+        generators: list[th.Generator] | None = None,
+        group_blocks: np.ndarray | None = None,
     ):
         super().__init__()
         in_mask_t = th.as_tensor(np.asarray(in_mask), dtype=th.float32)
@@ -180,12 +190,26 @@ class GroupedMLP(nn.Module):
         fan_ins = [in_mask_t.sum(dim=1), *[th.full((n_groups,), float(h)) for h in hidden_sizes]]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
+        runs = np.zeros(n_groups, dtype=np.int64) if group_runs is None else np.asarray(group_runs, dtype=np.int64)
+        if runs.shape != (n_groups,):
+            raise ValueError(f"group_runs must have one entry per group ({n_groups}), got shape {runs.shape}")
+        run_groups = [th.as_tensor(np.flatnonzero(runs == run)) for run in range(int(runs.max()) + 1)]
+        if generators is not None and len(generators) != len(run_groups):
+            raise ValueError(f"Expected one generator per run ({len(run_groups)}), got {len(generators)}")
         for layer, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
             bound = 1.0 / fan_ins[layer].clamp(min=1.0).sqrt()
-            weight = (th.rand(n_groups, n_out, n_in) * 2 - 1) * bound.view(n_groups, 1, 1)
-            bias = (th.rand(n_groups, n_out) * 2 - 1) * bound.view(n_groups, 1)
-            self.weights.append(nn.Parameter(weight))
-            self.biases.append(nn.Parameter(bias))
+            weight = th.empty(n_groups, n_out, n_in)
+            bias = th.empty(n_groups, n_out)
+            # each run draws its own groups (in group order) from its own generator, weights then biases
+            for run, idx in enumerate(run_groups):
+                gen = None if generators is None else generators[run]
+                weight[idx] = th.rand(len(idx), n_out, n_in, generator=gen) * 2 - 1
+                bias[idx] = th.rand(len(idx), n_out, generator=gen) * 2 - 1
+            self.weights.append(nn.Parameter(weight * bound.view(n_groups, 1, 1)))
+            self.biases.append(nn.Parameter(bias * bound.view(n_groups, 1)))
+        ids = runs if group_blocks is None else np.asarray(group_blocks)
+        edges = [0, *(int(g) for g in np.flatnonzero(ids[1:] != ids[:-1]) + 1), n_groups]
+        self.block_bounds = list(zip(edges[:-1], edges[1:]))  # row ranges of the stacked tensors, one per block
         full_in = bool(in_mask_t.all())
         self._full_out = bool(out_mask_t.all())
         # Masks are buffers (they move with .to(device)); None when nothing is masked

@@ -55,6 +55,8 @@ class MACB:
         each agent's critic getting its own bonus (MACB(o_i, a_i)); ``"state"``: joint observations only.
     :param seed: Seed of the SimHash matrices; None: the model's seed.
     :param decimals: Round observations and actions to this many decimals before hashing (None: no rounding).
+    :param counts: False gives the constant-bonus control: every sampled transition gets exactly ``beta``, nothing
+        is hashed or counted. It separates what counting contributes from what a reward offset does.
     """
 
     def __init__(
@@ -64,6 +66,7 @@ class MACB:
         scope: str = "joint",
         seed: int | None = None,
         decimals: int | None = 2,
+        counts: bool = True,
     ):
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
             raise ValueError(f"MACB: k (the hash code length) must be an integer >= 1, got {k!r}")
@@ -81,10 +84,14 @@ class MACB:
         self.k = int(k)
         self.scope = scope
         self.seed = seed
+        if not isinstance(counts, (bool, np.bool_)):
+            raise ValueError(f"MACB: counts must be True or False, got {counts!r}")
         self.decimals = decimals
+        self.counts = bool(counts)
         self.hashes: list[SimHash] = []
         self.tables: list[CountTable] = []
         self._layout: AgentLayout | None = None
+        self._constant_total = 0  # transitions seen by the constant-bonus control
 
     @classmethod
     def from_config(cls, config: "MACB | dict[str, Any] | None") -> "MACB | None":
@@ -100,17 +107,21 @@ class MACB:
         return cls(**config)
 
     def __repr__(self) -> str:
-        return f"MACB(beta={self.beta}, k={self.k}, scope={self.scope!r}, seed={self.seed}, decimals={self.decimals})"
+        extra = "" if self.counts else ", counts=False"
+        return f"MACB(beta={self.beta}, k={self.k}, scope={self.scope!r}, seed={self.seed}, decimals={self.decimals}{extra})"
 
     # --- setup and state ---------------------------------------------------------------------------------------
 
     @property
     def is_setup(self) -> bool:
-        return bool(self.tables)
+        return self._layout is not None and (bool(self.tables) or not self.counts)
 
     @property
     def n_tables(self) -> int:
-        return len(self.tables)
+        """Bonus columns: one per agent for ``scope="local"``, else one shared by all agents."""
+        if self._layout is None:
+            return 0
+        return self._layout.n_agents if self.scope == "local" else 1
 
     def setup(self, layout: AgentLayout, seed: int | None = None) -> None:
         """
@@ -131,6 +142,8 @@ class MACB:
             dims = [layout.obs_dim + layout.action_dim]
         else:
             dims = [layout.obs_dim]
+        if not self.counts:
+            dims = []  # the constant-bonus control hashes and counts nothing
         self.hashes = [SimHash(self.k, dim, rng, self.decimals) for dim in dims]
         self.tables = [CountTable() for _ in dims]
 
@@ -147,6 +160,8 @@ class MACB:
         self._require_setup()
         layout = self._layout
         assert layout is not None
+        if not self.counts:
+            return np.zeros((len(obs), self.n_tables), dtype=np.uint64)
         if self.scope == "joint":
             vectors = [np.concatenate([obs, actions], axis=1)]
         elif self.scope == "state":
@@ -159,6 +174,8 @@ class MACB:
 
     def count(self, keys: np.ndarray) -> None:
         """Count collected transitions. :param keys: (n, n_tables) from :meth:`keys`."""
+        if not self.counts:
+            self._constant_total += len(keys)
         for i, table in enumerate(self.tables):
             table.add(keys[:, i])
 
@@ -169,6 +186,8 @@ class MACB:
         :param keys: (n, n_tables) keys of counted transitions.
         :return: (n, n_tables) float32.
         """
+        if not self.counts:
+            return np.full((len(keys), self.n_tables), self.beta, dtype=np.float32)
         counts = np.stack([table.lookup(keys[:, i]) for i, table in enumerate(self.tables)], axis=1)
         if np.any(counts == 0):
             raise RuntimeError(
@@ -187,7 +206,7 @@ class MACB:
     @property
     def total_count(self) -> int:
         """Transitions counted."""
-        return self.tables[0].total_count if self.tables else 0
+        return self.tables[0].total_count if self.tables else self._constant_total
 
     @property
     def count1_fraction(self) -> float:
@@ -210,7 +229,8 @@ class MACB:
     @property
     def config(self) -> dict[str, Any]:
         """The settings, as plain values (what ``MACB(**config)`` takes)."""
-        return {"beta": self.beta, "k": self.k, "scope": self.scope, "seed": self.seed, "decimals": self.decimals}
+        config = {"beta": self.beta, "k": self.k, "scope": self.scope, "seed": self.seed, "decimals": self.decimals}
+        return config if self.counts else {**config, "counts": False}
 
     def state_dict(self) -> dict[str, th.Tensor]:
         """The hash matrices and count tables as tensors (saved in the model's zip file, as SB3 saves modules)."""
@@ -222,6 +242,8 @@ class MACB:
             tensors[f"keys_{i}"] = th.from_numpy(state["keys"].view(np.int64).copy())
             tensors[f"counts_{i}"] = th.from_numpy(state["counts"].astype(np.int64))
             tensors[f"total_{i}"] = th.tensor(table.total_count, dtype=th.int64)
+        if not self.counts:
+            tensors["constant_total"] = th.tensor(self._constant_total, dtype=th.int64)
         return tensors
 
     def load_state_dict(self, state: dict[str, th.Tensor], strict: bool = True) -> None:
@@ -232,7 +254,9 @@ class MACB:
         :param strict: Unused (the state must always match the MACB settings); kept for SB3's loader.
         """
         self._require_setup()
-        expected = {f"{name}_{i}" for i in range(self.n_tables) for name in ("matrix", "keys", "counts", "total")}
+        expected = {f"{name}_{i}" for i in range(len(self.tables)) for name in ("matrix", "keys", "counts", "total")}
+        if not self.counts:
+            expected = {"constant_total"}
         if set(state) != expected:
             raise ValueError(f"MACB: the saved count state does not match {self} (tables: {self.n_tables})")
         for i, h in enumerate(self.hashes):
@@ -244,3 +268,5 @@ class MACB:
             table = CountTable.from_state(keys, state[f"counts_{i}"].cpu().numpy())
             table.total_count = int(state[f"total_{i}"])
             self.tables[i] = table
+        if not self.counts:
+            self._constant_total = int(state["constant_total"])

@@ -1,15 +1,27 @@
+import copy
+import io
+import os
+import pathlib
+from collections.abc import Iterable
 from typing import Any, ClassVar, TypeVar
 
+import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.noise import (
+    ActionNoise,
+    NormalActionNoise,
+    OrnsteinUhlenbeckActionNoise,
+    VectorizedActionNoise,
+)
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.td3 import TD3
 
 from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
+from sb3_macb.common.atomic import atomic_write, with_suffix
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
 from sb3_macb.exploration.macb import MACB
 from sb3_macb.maddpg.policies import MADDPGPolicy, MlpPolicy, MultiAgentActor, MultiAgentCritic, _block_mask
@@ -31,6 +43,14 @@ class MADDPG(TD3):
     DDPG learners); with ``policy_kwargs=dict(n_critics=2)``, ``policy_delay=2`` and ``target_policy_noise=0.2``
     it is MATD3. With ``exploration=MACB(...)`` the replay buffer adds MACB's count-based bonus to sampled rewards.
 
+    **Packs.** With ``n_runs=K`` the model trains K independent runs at once, in one process and one set of
+    stacked tensors: the VecEnv's envs are split between the runs in order (one env per run is usual), every run
+    has its own networks, optimizer state (Adam is element-wise), minibatches, action noise, MACB count table and
+    random streams (``run_seeds``), and ``get_run(k)`` hands run ``k`` out as an ordinary model. Step counts
+    (``total_timesteps``, ``learning_starts``, ``num_timesteps``) are, as everywhere in SB3, summed over all envs:
+    K runs of T steps each are ``learn(K * T)``. Run ``k`` is the same experiment as a model with ``n_runs=1`` and
+    ``seed=run_seeds[k]`` (bit for bit on CPU's oneDNN path, see the tests).
+
     :param policy: The policy model to use (``"MlpPolicy"``).
     :param env: The environment to learn from: a joint env, a PettingZoo env, or a registered env id.
     :param learning_rate: Learning rate for Adam (actors and critics); can be a schedule.
@@ -51,12 +71,16 @@ class MADDPG(TD3):
     :param centralized_critic: Whether each agent's critic sees all agents (MADDPG) or only its own agent's
         observation and action (independent DDPG learners).
     :param exploration: Count-based exploration: an :class:`~sb3_macb.MACB`, a dict of its arguments, or None.
+        For a pack, one of these for every run, or a list of one per run.
     :param stats_window_size: Window size for the rollout logging.
     :param tensorboard_log: The log location for tensorboard (if None, no logging).
     :param policy_kwargs: Additional arguments for the policy (``net_arch``, ``n_critics``, ...).
     :param verbose: Verbosity level: 0 none, 1 info, 2 debug.
     :param seed: Seed for the pseudo random generators.
     :param device: Device (cpu, cuda, ...) on which the code should be run.
+    :param n_runs: Independent runs trained together (a pack); 1 for an ordinary model.
+    :param run_seeds: Seed of each run (networks, action noise, random warm-up actions, minibatches, env seeds,
+        MACB's hash matrix). Default: ``seed + k`` for run ``k`` when ``seed`` is given.
     :param _init_setup_model: Whether or not to build the network at the creation of the instance.
     """
 
@@ -80,7 +104,7 @@ class MADDPG(TD3):
         gamma: float = 0.99,
         train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
-        action_noise: ActionNoise | None = None,
+        action_noise: ActionNoise | list[ActionNoise] | None = None,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
@@ -88,13 +112,15 @@ class MADDPG(TD3):
         target_policy_noise: float = 0.0,
         target_noise_clip: float = 0.5,
         centralized_critic: bool = True,
-        exploration: MACB | dict[str, Any] | None = None,
+        exploration: MACB | dict[str, Any] | list[MACB | dict[str, Any] | None] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
         seed: int | None = None,
         device: th.device | str = "auto",
+        n_runs: int = 1,
+        run_seeds: list[int] | None = None,
         _init_setup_model: bool = True,
     ):
         if policy_kwargs and ("agent_layout" in policy_kwargs or "centralized_critic" in policy_kwargs):
@@ -105,11 +131,33 @@ class MADDPG(TD3):
             raise TypeError(
                 f"replay_buffer_class must derive from sb3_macb.buffers.MultiAgentReplayBuffer, got {replay_buffer_class}"
             )
+        if isinstance(n_runs, bool) or not isinstance(n_runs, (int, np.integer)) or n_runs < 1:
+            raise ValueError(f"n_runs must be an integer >= 1, got {n_runs!r}")
+        if run_seeds is not None and len(run_seeds) != n_runs:
+            raise ValueError(f"run_seeds needs one seed per run ({n_runs}), got {run_seeds}")
+        if run_seeds is None and seed is not None:
+            run_seeds = [int(seed) + k for k in range(n_runs)]
+        self.n_runs = int(n_runs)
+        self.run_seeds = None if run_seeds is None else [int(s) for s in run_seeds]
+        if seed is None and run_seeds is not None:
+            seed = self.run_seeds[0]  # type: ignore[index]
         self.agent_layout: AgentLayout | None = None
         self.centralized_critic = centralized_critic
-        self.exploration = MACB.from_config(exploration)
+        if isinstance(exploration, (list, tuple)):
+            per_run = list(exploration)
+        else:  # one setting for every run: each run gets its own copy (and its own count table)
+            per_run = [exploration] + [copy.deepcopy(exploration) for _ in range(n_runs - 1)]
+        if len(per_run) != n_runs:
+            raise ValueError(f"exploration: expected one setting per run ({n_runs}), got {len(per_run)}")
+        self.explorations: list[MACB | None] = [MACB.from_config(e) for e in per_run]
+        if isinstance(action_noise, (list, tuple)) and len(action_noise) != n_runs:
+            raise ValueError(f"action_noise: expected one per run ({n_runs}), got {len(action_noise)}")
         # MACB's settings travel in the saved data; its matrices and count tables are saved like a state dict
-        self.exploration_config: dict[str, Any] | None = None
+        self.exploration_config: dict[str, Any] | list[dict[str, Any] | None] | None = None
+        self._run_rngs: list[np.random.Generator] | None = None
+        run_noises = action_noise if isinstance(action_noise, (list, tuple)) else None
+        if run_noises is not None:
+            action_noise = run_noises[0]
         super().__init__(
             policy,
             env,
@@ -136,8 +184,92 @@ class MADDPG(TD3):
             device=device,
             _init_setup_model=False,
         )
+        if run_noises is not None and self.env is not None:
+            self.action_noise = self._per_env_noise(list(run_noises))
         if _init_setup_model:
             self._setup_model()
+
+    # --- runs of a pack -------------------------------------------------------------------------------------------
+
+    @property
+    def exploration(self) -> MACB | None:
+        """The MACB of an ordinary model (None without one); packs have one per run in ``explorations``."""
+        if self.n_runs != 1:
+            raise AttributeError("A pack has one MACB per run: use model.explorations[k] (or model.get_run(k).exploration)")
+        return self.explorations[0]
+
+    @property
+    def envs_per_run(self) -> int:
+        return self.n_envs // self.n_runs
+
+    def _per_env_noise(self, run_noises: list[ActionNoise]) -> ActionNoise:
+        """One noise process per env, run ``k``'s envs copying ``run_noises[k]``."""
+        per_env = [copy.deepcopy(run_noises[e // self.envs_per_run]) for e in range(self.n_envs)]
+        if self.n_envs == 1:
+            return per_env[0]
+        vectorized = VectorizedActionNoise(per_env[0], self.n_envs)
+        vectorized.noises = per_env
+        return vectorized
+
+    def _env_seeds(self) -> list[int] | None:
+        if self.run_seeds is None:
+            return None
+        step = self.envs_per_run
+        return [self.run_seeds[e // step] + e % step for e in range(self.n_envs)]
+
+    def set_random_seed(self, seed: int | None = None) -> None:
+        """
+        Seed the global generators (python, numpy, torch) and the env as SB3 does; in a pack, env ``j`` of run
+        ``k`` is seeded ``run_seeds[k] + j`` (for one run, ``seed + j`` as SB3 seeds it).
+        """
+        super().set_random_seed(seed)
+        seeds = self._env_seeds()
+        if seeds is not None and self.env is not None:
+            venv: VecEnv = self.env
+            while isinstance(venv, VecEnvWrapper):
+                venv = venv.venv
+            venv._seeds = seeds  # what VecEnv.seed() sets, with one seed per env instead of seed + index
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        SB3's action sampling (random warm-up actions, then the actors' actions plus noise, clipped to the bounds),
+        with every random draw made by the env's run's own generator.
+        """
+        assert self._run_rngs is not None
+        step = self.envs_per_run
+        if self.num_timesteps < learning_starts:
+            low, high = self.action_space.low, self.action_space.high  # type: ignore[attr-defined]
+            unscaled = np.stack([self._run_rngs[e // step].uniform(low, high) for e in range(n_envs)]).astype(np.float32)
+        else:
+            assert self._last_obs is not None, "self._last_obs was not set"
+            unscaled, _ = self.predict(self._last_obs, deterministic=False)  # type: ignore[arg-type]
+        scaled = self.policy.scale_action(unscaled)
+        if action_noise is not None:
+            scaled = np.clip(scaled + self._draw_noise(action_noise, n_envs), -1, 1)
+        return self.policy.unscale_action(scaled), scaled
+
+    def _draw_noise(self, action_noise: ActionNoise, n_envs: int) -> np.ndarray:
+        """One noise vector per env, Gaussian and Ornstein-Uhlenbeck noise drawn from the env's run's generator."""
+        assert self._run_rngs is not None
+        noises = action_noise.noises if isinstance(action_noise, VectorizedActionNoise) else [action_noise] * n_envs
+        draws = []
+        for e, noise in enumerate(noises):
+            rng = self._run_rngs[e // self.envs_per_run]
+            if isinstance(noise, NormalActionNoise):
+                draws.append(rng.normal(noise._mu, noise._sigma))
+            elif isinstance(noise, OrnsteinUhlenbeckActionNoise):
+                x = (
+                    noise.noise_prev
+                    + noise._theta * (noise._mu - noise.noise_prev) * noise._dt
+                    + noise._sigma * np.sqrt(noise._dt) * rng.normal(size=noise._mu.shape)
+                )
+                noise.noise_prev = x
+                draws.append(x)
+            else:  # another noise class: its own random source
+                draws.append(noise())
+        return np.asarray(draws, dtype=np.float32)
 
     @staticmethod
     def _wrap_env(env: GymEnv | Any, verbose: int = 0, monitor_wrapper: bool = True) -> VecEnv:
@@ -174,13 +306,22 @@ class MADDPG(TD3):
         if self.n_steps != 1:
             raise ValueError("MADDPG does not support n-step returns (n_steps must be 1)")
         layout = self.agent_layout
-        if self.exploration is None and self.exploration_config is not None:
-            self.exploration = MACB(**self.exploration_config)  # loading a saved model
-        buffer_extra: dict[str, Any] = {"n_agents": layout.n_agents}
-        if self.exploration is not None:
-            self.exploration.setup(layout, seed=self.seed)
-            self.exploration_config = self.exploration.config
-            buffer_extra["exploration"] = self.exploration
+        if "exploration" in self.__dict__:  # a model saved by sb3_macb 0.1 held one MACB as "exploration"
+            self.explorations = [self.__dict__.pop("exploration")]
+        if self.n_envs % self.n_runs:
+            raise ValueError(f"A pack of {self.n_runs} runs needs a number of envs divisible by {self.n_runs}, got {self.n_envs}")
+        buffer_extra: dict[str, Any] = {"n_agents": layout.n_agents, "n_runs": self.n_runs}
+        seeds = self.run_seeds or [None] * self.n_runs
+        for exploration, seed in zip(self.explorations, seeds):
+            if exploration is not None:
+                exploration.setup(layout, seed=seed)
+        self.exploration_config = [e.config if e is not None else None for e in self.explorations]
+        if self.n_runs == 1:
+            self.exploration_config = self.exploration_config[0]
+        if self._run_rngs is None:  # (a loaded model brings its generators' states)
+            self._run_rngs = [np.random.default_rng(seed) for seed in seeds]
+        if any(e is not None for e in self.explorations):
+            buffer_extra["exploration"] = list(self.explorations)
             if self.replay_buffer_class is None:
                 self.replay_buffer_class = MACBReplayBuffer
             elif not issubclass(self.replay_buffer_class, MACBReplayBuffer):
@@ -189,13 +330,20 @@ class MADDPG(TD3):
             self.replay_buffer_class = MultiAgentReplayBuffer
         # The layout-derived arguments are passed while building, not stored in the user's kwargs
         user_policy_kwargs, user_buffer_kwargs = self.policy_kwargs, self.replay_buffer_kwargs
-        self.policy_kwargs = {**user_policy_kwargs, "agent_layout": layout, "centralized_critic": self.centralized_critic}
+        self.policy_kwargs = {
+            **user_policy_kwargs,
+            "agent_layout": layout,
+            "centralized_critic": self.centralized_critic,
+            "n_runs": self.n_runs,
+            "run_seeds": self.run_seeds,
+        }
         self.replay_buffer_kwargs = {**user_buffer_kwargs, **buffer_extra}
         try:
             super()._setup_model()
         finally:
             self.policy_kwargs, self.replay_buffer_kwargs = user_policy_kwargs, user_buffer_kwargs
 
+        self._exploration_pack = _ExplorationPack(self.explorations)
         # Agent i's slice of the joint action, to put its actor's action into its own critic's input
         masks = _block_mask(layout.action_slices, layout.action_dim)[:, None, :]
         self._action_masks = th.as_tensor(masks, device=self.device)
@@ -214,17 +362,21 @@ class MADDPG(TD3):
         buffer = self.replay_buffer
         if not isinstance(buffer, MultiAgentReplayBuffer):
             raise TypeError(f"Expected a MultiAgentReplayBuffer, the file holds a {type(buffer).__name__}")
-        if self.exploration is not None and not isinstance(buffer, MACBReplayBuffer):
+        if getattr(buffer, "n_runs", 1) != self.n_runs or buffer.n_envs != self.n_envs:
+            raise ValueError("This replay buffer was saved by a model with another number of runs or envs than this model's")
+        if any(e is not None for e in self.explorations) and not isinstance(buffer, MACBReplayBuffer):
             raise ValueError("This model uses MACB but the replay buffer has no hash keys (it was saved without MACB)")
         if isinstance(buffer, MACBReplayBuffer):
-            if self.exploration is None or buffer.hash_keys.shape[-1] != self.exploration.n_tables:
+            n_tables = max((e.n_tables for e in self.explorations if e is not None), default=-1)
+            if buffer.hash_keys.shape[-1] != n_tables:
                 raise ValueError("This replay buffer was saved by a model using MACB with other settings than this model's")
-            buffer.exploration = self.exploration
+            buffer.explorations = list(self.explorations)
 
     def dump_logs(self) -> None:
-        if self.exploration is not None:
-            self.logger.record("exploration/num_codes", self.exploration.num_codes)
-            self.logger.record("exploration/count1_percent", 100.0 * self.exploration.count1_fraction)
+        explorations = [e for e in self.explorations if e is not None]
+        if explorations:  # (means over the runs of a pack)
+            self.logger.record("exploration/num_codes", float(np.mean([e.num_codes for e in explorations])))
+            self.logger.record("exploration/count1_percent", 100.0 * float(np.mean([e.count1_fraction for e in explorations])))
             mean_bonus = self.replay_buffer.pop_mean_bonus() if isinstance(self.replay_buffer, MACBReplayBuffer) else None
             if mean_bonus is not None:
                 self.logger.record("exploration/mean_bonus", mean_bonus)
@@ -233,24 +385,26 @@ class MADDPG(TD3):
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        assert self._run_rngs is not None
         actor_losses, critic_losses = [], []
         for _ in range(gradient_steps):
             self._n_updates += 1
-            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            rewards = data.rewards.T  # (n_agents, batch): each critic learns from its own agent's reward
-            not_done = 1.0 - data.dones.T  # (1, batch)
+            # one minibatch per run, each from its own envs with its own generator: (n_runs, batch, ...)
+            data = self.replay_buffer.sample_runs(batch_size, self._run_rngs, env=self._vec_normalize_env)
+            rewards = data.rewards.transpose(1, 2)  # (n_runs, n_agents, batch): each critic learns its own reward
+            not_done = 1.0 - data.dones.unsqueeze(1)  # (n_runs, 1, batch)
 
             with th.no_grad():
                 next_actions = self.actor_target(data.next_observations)
                 if self.target_policy_noise > 0:
                     noise = th.randn_like(next_actions).mul_(self.target_policy_noise)
                     next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
-                next_q = self.critic_target(data.next_observations, next_actions)  # (n_critics, n_agents, batch)
+                next_q = self.critic_target(data.next_observations, next_actions)  # (n_critics, n_runs, n_agents, batch)
                 next_q = next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0]
                 target_q = rewards + self.gamma * not_done * next_q
 
             current_q = self.critic(data.observations, data.actions)
-            # Sum over agents (and critics) of each critic's MSE: the agents' gradients stay separate
+            # Sum over runs, agents (and critics) of each critic's MSE: the groups' gradients stay separate
             critic_loss = (current_q - target_q).pow(2).mean(dim=-1).sum()
             self.critic.optimizer.zero_grad(set_to_none=True)
             critic_loss.backward()
@@ -259,8 +413,9 @@ class MADDPG(TD3):
 
             if self._n_updates % self.policy_delay == 0:
                 # Agent i's critic sees the buffer actions with agent i's slice replaced by its actor's action
-                pi = self.actor(data.observations)
-                mixed = data.actions + self._action_masks * (pi - data.actions)
+                pi = self.actor(data.observations).unsqueeze(1)  # (n_runs, 1, batch, action_dim)
+                actions = data.actions.unsqueeze(1)
+                mixed = actions + self._action_masks * (pi - actions)  # (n_runs, n_agents, batch, action_dim)
                 q = self.critic.q1_forward(data.observations, mixed, detach_params=True)
                 actor_loss = -q.mean(dim=-1).sum()
                 self.actor.optimizer.zero_grad(set_to_none=True)
@@ -272,11 +427,11 @@ class MADDPG(TD3):
                     th._foreach_lerp_(self._critic_target_params, self._critic_params, self.tau)
                     th._foreach_lerp_(self._actor_target_params, self._actor_params, self.tau)
 
-        n_agents = self.agent_layout.n_agents  # type: ignore[union-attr]
+        groups = self.agent_layout.n_agents * self.n_runs  # type: ignore[union-attr]
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         if actor_losses:
-            self.logger.record("train/actor_loss", th.stack(actor_losses).mean().item() / n_agents)
-        self.logger.record("train/critic_loss", th.stack(critic_losses).mean().item() / n_agents)
+            self.logger.record("train/actor_loss", th.stack(actor_losses).mean().item() / groups)
+        self.logger.record("train/critic_loss", th.stack(critic_losses).mean().item() / groups)
 
     def learn(
         self: SelfMADDPG,
@@ -296,10 +451,38 @@ class MADDPG(TD3):
             progress_bar=progress_bar,
         )
 
+    # --- saving -------------------------------------------------------------------------------------------------
+
+    def save(
+        self,
+        path: str | pathlib.Path | io.BufferedIOBase,
+        exclude: Iterable[str] | None = None,
+        include: Iterable[str] | None = None,
+    ) -> None:
+        """
+        SB3's ``save``, written atomically: the zip goes to a temporary file that replaces ``path`` only once it is
+        complete, so a process killed while saving leaves the previous file intact.
+        """
+        if isinstance(path, (str, os.PathLike)):
+            with atomic_write(with_suffix(path, ".zip")) as file:
+                super().save(file, exclude=exclude, include=include)  # type: ignore[arg-type]
+        else:
+            super().save(path, exclude=exclude, include=include)
+
+    def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
+        """SB3's ``save_replay_buffer``, written atomically (see :meth:`save`)."""
+        if isinstance(path, (str, os.PathLike)):
+            with atomic_write(with_suffix(path, ".pkl")) as file:
+                super().save_replay_buffer(file)  # type: ignore[arg-type]
+        else:
+            super().save_replay_buffer(path)
+
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
-        if self.exploration is not None:
+        if self.n_runs == 1 and self.explorations[0] is not None:
             state_dicts = [*state_dicts, "exploration"]
+        elif any(e is not None for e in self.explorations):
+            state_dicts = [*state_dicts, "_exploration_pack"]
         return state_dicts, variables
 
     def _excluded_save_params(self) -> list[str]:
@@ -310,4 +493,102 @@ class MADDPG(TD3):
             "_actor_target_params",
             "_critic_params",
             "_critic_target_params",
+            "_exploration_pack",
         ]
+
+    # --- a pack's run as an ordinary model -------------------------------------------------------------------------
+
+    def get_run(self, k: int, env: GymEnv | Any = None) -> "MADDPG":
+        """
+        Run ``k`` of a pack as an ordinary MADDPG model (``n_runs=1``): its networks, target networks, optimizer
+        state, MACB count table, random generator, step and update counts. The replay buffer is not copied.
+
+        :param k: The run, 0 to ``n_runs - 1``.
+        :param env: The env to attach (optional, as for :meth:`load`).
+        """
+        if not 0 <= k < self.n_runs:
+            raise IndexError(f"run {k} out of range for a pack of {self.n_runs}")
+        data = {
+            name: value
+            for name, value in self.__dict__.items()
+            if name not in set(self._excluded_save_params()) | {"actor", "critic", "actor_target", "critic_target"}
+        }
+        data = copy.deepcopy({name: value for name, value in data.items() if name not in ("explorations", "_run_rngs")})
+        solo = type(self)(policy=self.policy_class, env=None, device=self.device, _init_setup_model=False)
+        per_run = self.n_runs
+        data.update(
+            n_runs=1,
+            n_envs=self.envs_per_run,
+            run_seeds=None if self.run_seeds is None else [self.run_seeds[k]],
+            seed=None if self.run_seeds is None else self.run_seeds[k],
+            explorations=[copy.deepcopy(self.explorations[k])],
+            _run_rngs=[copy.deepcopy(self._run_rngs[k])],  # type: ignore[index]
+            num_timesteps=self.num_timesteps // per_run,
+            learning_starts=self.learning_starts // per_run,
+            _total_timesteps=self._total_timesteps // per_run,
+            _num_timesteps_at_start=self._num_timesteps_at_start // per_run,
+            _episode_num=self._episode_num // per_run,
+            _last_obs=None,
+            _last_original_obs=None,
+            _last_episode_starts=None,
+            action_noise=None if self.action_noise is None else self._run_noise(k),
+            replay_buffer=None,
+            # the package's own buffers are chosen again from the run's exploration; a user's class is kept
+            replay_buffer_class=None
+            if self.replay_buffer_class in (MACBReplayBuffer, MultiAgentReplayBuffer)
+            else self.replay_buffer_class,
+        )
+        solo.__dict__.update(data)
+        solo._setup_model()
+        if self.explorations[k] is not None:  # the deep copy lost the tables; carry them over
+            solo.explorations[0].load_state_dict(self.explorations[k].state_dict())  # type: ignore[union-attr]
+        with th.no_grad():
+            for name, module in (("actor", "actor"), ("actor_target", "actor"), ("critic", "critic"), ("critic_target", "critic")):
+                mine, theirs = getattr(self, name).state_dict(), getattr(solo, name).state_dict()
+                getattr(solo, name).load_state_dict({key: self._run_slice(mine[key], module, k) for key in theirs})
+        for name in ("actor", "critic"):
+            opt, solo_opt = getattr(self, name).optimizer, getattr(solo, name).optimizer
+            state = opt.state_dict()
+            state["state"] = {
+                idx: {key: (self._run_slice(v, name, k) if v.dim() > 0 else v.clone()) for key, v in entry.items()}
+                for idx, entry in state["state"].items()
+            }
+            solo_opt.load_state_dict(state)
+        if env is not None:
+            solo.set_env(env)
+        return solo
+
+    def _run_noise(self, k: int) -> ActionNoise:
+        noise = self.action_noise
+        if isinstance(noise, VectorizedActionNoise):
+            noise = noise.noises[k * self.envs_per_run]
+        return copy.deepcopy(noise)  # type: ignore[arg-type]
+
+    def _run_slice(self, tensor: th.Tensor, module: str, k: int) -> th.Tensor:
+        """Run ``k``'s groups of a stacked actor (groups: run, agent) or critic (groups: critic, run, agent) tensor."""
+        n_agents = self.agent_layout.n_agents  # type: ignore[union-attr]
+        if module == "actor":
+            return tensor.reshape(self.n_runs, n_agents, *tensor.shape[1:])[k].clone()
+        n_critics = tensor.shape[0] // (self.n_runs * n_agents)
+        return tensor.reshape(n_critics, self.n_runs, n_agents, *tensor.shape[1:])[:, k].reshape(-1, *tensor.shape[1:]).clone()
+
+
+class _ExplorationPack:
+    """The MACB states of a pack's runs as one state dict (what SB3 saves in the model's zip)."""
+
+    def __init__(self, explorations: list[MACB | None]):
+        self.explorations = explorations
+
+    def state_dict(self) -> dict[str, th.Tensor]:
+        return {
+            f"run{k}.{name}": tensor
+            for k, exploration in enumerate(self.explorations)
+            if exploration is not None
+            for name, tensor in exploration.state_dict().items()
+        }
+
+    def load_state_dict(self, state: dict[str, th.Tensor], strict: bool = True) -> None:
+        for k, exploration in enumerate(self.explorations):
+            if exploration is not None:
+                prefix = f"run{k}."
+                exploration.load_state_dict({key[len(prefix) :]: v for key, v in state.items() if key.startswith(prefix)})

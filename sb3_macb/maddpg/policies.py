@@ -9,6 +9,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
+from sb3_macb.common.block_adam import BlockAdam
 from sb3_macb.common.grouped_mlp import GroupedMLP
 from sb3_macb.envs.joint_env import AgentLayout
 
@@ -20,41 +21,84 @@ def _block_mask(rows: list[slice], width: int) -> np.ndarray:
     return mask
 
 
+def _generators(run_seeds: list[int] | None) -> list[th.Generator] | None:
+    """One torch generator per run, seeded as ``th.manual_seed(seed)`` would seed the global one."""
+    return None if run_seeds is None else [th.Generator().manual_seed(int(seed)) for seed in run_seeds]
+
+
+def _split_runs(x: th.Tensor, n_runs: int) -> th.Tensor:
+    """(N, D) rows, run-major (N/n_runs per run), as (n_runs, N/n_runs, D); a (n_runs, n, D) tensor as it is."""
+    if x.dim() == 3:
+        if x.shape[0] != n_runs:
+            raise ValueError(f"Expected {n_runs} runs on the first axis, got shape {tuple(x.shape)}")
+        return x
+    if x.shape[0] % n_runs:
+        raise ValueError(
+            f"A pack of {n_runs} runs takes observations run by run, n per run ({n_runs} * n rows); got {x.shape[0]} rows"
+        )
+    return x.reshape(n_runs, x.shape[0] // n_runs, x.shape[-1])
+
+
 class MultiAgentActor(nn.Module):
     """
-    One deterministic actor per agent, each reading its own observation; the output is the joint action in
-    [-1, 1] (tanh), each agent writing its own slice.
+    One deterministic actor per agent (and per run of a pack), each reading its own observation; the output is
+    the joint action in [-1, 1] (tanh), each agent writing its own slice. Group ``r * n_agents + i`` is agent
+    ``i`` of run ``r``.
 
     :param layout: The agents' observation and action sizes.
     :param net_arch: Hidden layer sizes of each actor.
     :param activation_fn: Activation function.
+    :param n_runs: Independent runs whose actors are stacked together (1: an ordinary model).
+    :param generators: One torch generator per run for the initial weights (None: the global one).
     """
 
-    def __init__(self, layout: AgentLayout, net_arch: list[int], activation_fn: type[nn.Module] = nn.ReLU):
+    def __init__(
+        self,
+        layout: AgentLayout,
+        net_arch: list[int],
+        activation_fn: type[nn.Module] = nn.ReLU,
+        n_runs: int = 1,
+        generators: list[th.Generator] | None = None,
+    ):
         super().__init__()
+        self.n_agents = layout.n_agents
+        self.n_runs = n_runs
         self.mu = GroupedMLP(
-            _block_mask(layout.obs_slices, layout.obs_dim),
+            np.tile(_block_mask(layout.obs_slices, layout.obs_dim), (n_runs, 1)),
             net_arch,
-            _block_mask(layout.action_slices, layout.action_dim),
+            np.tile(_block_mask(layout.action_slices, layout.action_dim), (n_runs, 1)),
             activation_fn,
-            sum_groups=True,
+            group_runs=np.repeat(np.arange(n_runs), layout.n_agents),
+            generators=generators,
         )
 
     def forward(self, obs: th.Tensor) -> th.Tensor:
-        return th.tanh(self.mu(obs))
+        """
+        :param obs: (n_runs, batch, obs_dim), or (n_runs * n, obs_dim) with the runs' rows one run after another.
+        :return: Joint actions, of the same leading shape as ``obs``.
+        """
+        x = _split_runs(obs, self.n_runs)
+        runs, batch, dim = x.shape
+        x = x.unsqueeze(1).expand(runs, self.n_agents, batch, dim).reshape(runs * self.n_agents, batch, dim)
+        out = self.mu(x)
+        # each agent writes its own slice (the others' outputs are exact zeros): the sum assembles the joint action
+        action = th.tanh(out.view(runs, self.n_agents, batch, -1).sum(dim=1))
+        return action if obs.dim() == 3 else action.reshape(obs.shape[0], -1)
 
 
 class MultiAgentCritic(nn.Module):
     """
-    ``n_critics`` Q-networks per agent, all evaluated in one batched pass. Group ``c * n_agents + i`` is critic
-    ``c`` of agent ``i``. A centralized critic reads every agent's observation and action; an independent one
-    (``centralized=False``) reads only its own agent's observation and action.
+    ``n_critics`` Q-networks per agent (and per run of a pack), all evaluated in one batched pass. Group
+    ``(c * n_runs + r) * n_agents + i`` is critic ``c`` of agent ``i`` in run ``r``. A centralized critic reads every
+    agent's observation and action; an independent one (``centralized=False``) reads only its own agent's.
 
     :param layout: The agents' observation and action sizes.
     :param net_arch: Hidden layer sizes of each critic.
     :param activation_fn: Activation function.
     :param n_critics: Number of critics per agent (2 for MATD3).
     :param centralized: Whether each critic sees all agents (MADDPG) or only its own agent (independent DDPG).
+    :param n_runs: Independent runs whose critics are stacked together (1: an ordinary model).
+    :param generators: One torch generator per run for the initial weights (None: the global one).
     """
 
     def __init__(
@@ -64,10 +108,13 @@ class MultiAgentCritic(nn.Module):
         activation_fn: type[nn.Module] = nn.ReLU,
         n_critics: int = 1,
         centralized: bool = True,
+        n_runs: int = 1,
+        generators: list[th.Generator] | None = None,
     ):
         super().__init__()
         self.n_agents = layout.n_agents
         self.n_critics = n_critics
+        self.n_runs = n_runs
         n_in = layout.obs_dim + layout.action_dim
         if centralized:
             in_mask = np.ones((layout.n_agents, n_in), dtype=np.float32)
@@ -75,27 +122,44 @@ class MultiAgentCritic(nn.Module):
             obs_mask = _block_mask(layout.obs_slices, layout.obs_dim)
             act_mask = _block_mask(layout.action_slices, layout.action_dim)
             in_mask = np.concatenate([obs_mask, act_mask], axis=1)
-        in_mask = np.tile(in_mask, (n_critics, 1))
-        self.q_net = GroupedMLP(in_mask, net_arch, np.ones((len(in_mask), 1), dtype=np.float32), activation_fn)
+        in_mask = np.tile(in_mask, (n_critics * n_runs, 1))
+        group_runs = np.tile(np.repeat(np.arange(n_runs), layout.n_agents), n_critics)
+        self.q_net = GroupedMLP(
+            in_mask,
+            net_arch,
+            np.ones((len(in_mask), 1), dtype=np.float32),
+            activation_fn,
+            group_runs=group_runs,
+            generators=generators,
+            group_blocks=np.repeat(np.arange(n_critics * n_runs), layout.n_agents),  # one block per (critic, run)
+        )
 
     def forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """
-        :return: Q-values of shape (n_critics, n_agents, batch).
+        :param obs: (n_runs, batch, obs_dim) joint observations (or (batch, obs_dim) for one run).
+        :param actions: (n_runs, batch, action_dim) joint actions (or (batch, action_dim)).
+        :return: Q-values of shape (n_critics, n_runs, n_agents, batch).
         """
-        q = self.q_net(th.cat([obs, actions], dim=-1))
-        return q.view(self.n_critics, self.n_agents, -1)
+        x = _split_runs(th.cat([obs, actions], dim=-1), self.n_runs)
+        runs, batch, dim = x.shape
+        groups = self.n_critics * runs * self.n_agents
+        x = x.unsqueeze(0).unsqueeze(2).expand(self.n_critics, runs, self.n_agents, batch, dim).reshape(groups, batch, dim)
+        return self.q_net(x).view(self.n_critics, runs, self.n_agents, batch)
 
     def q1_forward(self, obs: th.Tensor, actions: th.Tensor, detach_params: bool = False) -> th.Tensor:
         """
-        First critic of each agent, where agent ``i``'s critic gets the ``i``-th row of ``actions``.
+        First critic of each agent, where agent ``i``'s critic gets its own row of ``actions``.
 
-        :param obs: (batch, obs_dim) joint observations.
-        :param actions: (n_agents, batch, action_dim) joint actions, one per agent.
+        :param obs: (n_runs, batch, obs_dim) joint observations.
+        :param actions: (n_runs, n_agents, batch, action_dim) joint actions, one per agent.
         :param detach_params: Do not record gradients for the critic's parameters.
-        :return: (n_agents, batch)
+        :return: (n_runs, n_agents, batch)
         """
-        x = th.cat([obs.expand(self.n_agents, *obs.shape), actions], dim=-1)
-        return self.q_net(x, groups=slice(0, self.n_agents), detach_params=detach_params).squeeze(-1)
+        runs, batch, _ = obs.shape
+        x = th.cat([obs.unsqueeze(1).expand(runs, self.n_agents, batch, obs.shape[-1]), actions], dim=-1)
+        x = x.reshape(runs * self.n_agents, batch, x.shape[-1])
+        q = self.q_net(x, groups=slice(0, runs * self.n_agents), detach_params=detach_params)
+        return q.view(runs, self.n_agents, batch)
 
 
 class MADDPGPolicy(BasePolicy):
@@ -113,6 +177,8 @@ class MADDPGPolicy(BasePolicy):
     :param optimizer_class: The optimizer to use, ``th.optim.Adam`` by default.
     :param optimizer_kwargs: Additional keyword arguments for the optimizer. By default a fused Adam
         implementation is used where the device supports it.
+    :param n_runs: Independent runs packed in the stacked tensors (set by MADDPG; 1 for an ordinary model).
+    :param run_seeds: Seed of each run's initial weights (set by MADDPG; None: torch's global generator).
     """
 
     def __init__(
@@ -127,6 +193,8 @@ class MADDPGPolicy(BasePolicy):
         centralized_critic: bool = True,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
+        n_runs: int = 1,
+        run_seeds: list[int] | None = None,
     ):
         super().__init__(
             observation_space,
@@ -154,34 +222,44 @@ class MADDPGPolicy(BasePolicy):
         self.activation_fn = activation_fn
         self.n_critics = n_critics
         self.centralized_critic = centralized_critic
-        self._actor_kwargs = dict(layout=agent_layout, net_arch=actor_arch, activation_fn=activation_fn)
+        if n_runs < 1 or (run_seeds is not None and len(run_seeds) != n_runs):
+            raise ValueError(f"n_runs must be >= 1 with one seed per run; got n_runs={n_runs}, run_seeds={run_seeds}")
+        self.n_runs = n_runs
+        self.run_seeds = None if run_seeds is None else [int(seed) for seed in run_seeds]
+        self._actor_kwargs = dict(layout=agent_layout, net_arch=actor_arch, activation_fn=activation_fn, n_runs=n_runs)
         self._critic_kwargs = dict(
             layout=agent_layout,
             net_arch=critic_arch,
             activation_fn=activation_fn,
             n_critics=n_critics,
             centralized=centralized_critic,
+            n_runs=n_runs,
         )
         self._build(lr_schedule)
 
     def _build(self, lr_schedule: Schedule) -> None:
-        self.actor = MultiAgentActor(**self._actor_kwargs)
+        # each run draws its actors' then its critics' weights from its own generator, whatever it is packed with
+        generators = _generators(self.run_seeds)
+        self.actor = MultiAgentActor(**self._actor_kwargs, generators=generators)
         self.actor_target = MultiAgentActor(**self._actor_kwargs)
         self.actor_target.load_state_dict(self.actor.state_dict())
-        self.critic = MultiAgentCritic(**self._critic_kwargs)
+        self.critic = MultiAgentCritic(**self._critic_kwargs, generators=generators)
         self.critic_target = MultiAgentCritic(**self._critic_kwargs)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.actor_target.requires_grad_(False)
         self.critic_target.requires_grad_(False)
-        self.actor.optimizer = self._make_optimizer(self.actor.parameters(), lr_schedule)
-        self.critic.optimizer = self._make_optimizer(self.critic.parameters(), lr_schedule)
+        self.actor.optimizer = self._make_optimizer(self.actor.mu, lr_schedule)
+        self.critic.optimizer = self._make_optimizer(self.critic.q_net, lr_schedule)
         self.set_training_mode(False)
 
-    def _make_optimizer(self, params: Any, lr_schedule: Schedule) -> th.optim.Optimizer:
+    def _make_optimizer(self, net: GroupedMLP, lr_schedule: Schedule) -> th.optim.Optimizer:
         kwargs = dict(self.optimizer_kwargs)
         if self.optimizer_class is th.optim.Adam and not ({"fused", "foreach"} & set(kwargs)):
-            kwargs["fused"] = True  # one kernel for all stacked tensors; supported on CPU and CUDA
-        return self.optimizer_class(params, lr=lr_schedule(1), **kwargs)  # type: ignore[call-arg]
+            # Adam's fused kernel, given each run's block of the stacked tensors separately, so that a run is
+            # updated the same way alone or in a pack
+            blocks = [net.block_bounds for _ in net.parameters()]
+            return BlockAdam(net.parameters(), blocks=blocks, lr=lr_schedule(1), **kwargs)
+        return self.optimizer_class(net.parameters(), lr=lr_schedule(1), **kwargs)  # type: ignore[call-arg]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -195,6 +273,8 @@ class MADDPGPolicy(BasePolicy):
                 optimizer_class=self.optimizer_class,
                 optimizer_kwargs=self.optimizer_kwargs,
                 lr_schedule=self._dummy_schedule,
+                n_runs=self.n_runs,
+                run_seeds=self.run_seeds,
             )
         )
         return data

@@ -1,0 +1,81 @@
+"""Adam applied block by block to stacked parameters, so that a run's update does not depend on its neighbours."""
+
+from collections.abc import Iterable
+
+import torch as th
+
+
+class BlockAdam(th.optim.Adam):
+    """
+    ``torch.optim.Adam`` with ``fused=True`` whose fused kernel is given each block of a stacked parameter (a range
+    of rows along its first axis: one run's agents) as a tensor of its own.
+
+    Adam is element-wise, so the result is the same in exact arithmetic; in floating point the fused CPU kernel
+    treats the elements of a vectorized main loop and of its scalar tail differently, so an element's rounding
+    depends on its position in the tensor. Given block by block, a run's parameters are updated by the same
+    instructions whether the run is trained alone or packed with others. State and ``state_dict`` are Adam's.
+
+    :param params: The parameters (one parameter group).
+    :param blocks: For each parameter, in order, the ``(start, stop)`` row ranges to update as separate tensors
+        (None or a missing entry: the whole tensor).
+    :param kwargs: Adam's arguments (``lr``, ``betas``, ``eps``, ``weight_decay``, ``amsgrad``, ``maximize``).
+    """
+
+    def __init__(self, params: Iterable[th.Tensor], blocks: list[list[tuple[int, int]] | None] | None = None, **kwargs):
+        kwargs = {**kwargs, "fused": True}
+        kwargs.pop("foreach", None)
+        params = list(params)
+        super().__init__(params, **kwargs)
+        blocks = blocks or []
+        self._blocks = {id(p): (blocks[i] if i < len(blocks) and blocks[i] else None) for i, p in enumerate(params)}
+
+    @th.no_grad()
+    def step(self, closure=None):  # type: ignore[no-untyped-def]
+        loss = None
+        if closure is not None:
+            with th.enable_grad():
+                loss = closure()
+        for group in self.param_groups:
+            lists: list[list[th.Tensor]] = [[], [], [], [], [], []]
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                if p.grad.is_sparse:
+                    raise RuntimeError("BlockAdam does not support sparse gradients")
+                state = self.state[p]
+                if not state:
+                    state["step"] = th.zeros((), dtype=th.float32, device=p.device)
+                    state["exp_avg"] = th.zeros_like(p, memory_format=th.preserve_format)
+                    state["exp_avg_sq"] = th.zeros_like(p, memory_format=th.preserve_format)
+                    if group["amsgrad"]:
+                        state["max_exp_avg_sq"] = th.zeros_like(p, memory_format=th.preserve_format)
+                state["step"] += 1  # once per parameter, read by every block
+                tensors = [p, p.grad, state["exp_avg"], state["exp_avg_sq"]]
+                if group["amsgrad"]:
+                    tensors.append(state["max_exp_avg_sq"])
+                for start, stop in self._blocks.get(id(p)) or [(0, p.shape[0] if p.dim() else 1)]:
+                    for out, tensor in zip(lists, tensors):
+                        out.append(tensor[start:stop] if tensor.dim() else tensor)
+                    lists[5].append(state["step"])
+            params, grads, exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps = lists
+            if not params:
+                continue
+            beta1, beta2 = group["betas"]
+            th._fused_adam_(
+                params,
+                grads,
+                exp_avgs,
+                exp_avg_sqs,
+                max_exp_avg_sqs,
+                steps,
+                amsgrad=group["amsgrad"],
+                lr=group["lr"],
+                beta1=beta1,
+                beta2=beta2,
+                weight_decay=group["weight_decay"],
+                eps=group["eps"],
+                maximize=group["maximize"],
+                grad_scale=None,
+                found_inf=None,
+            )
+        return loss
