@@ -1,0 +1,556 @@
+"""
+Experiments that survive interruption and pack many runs into one process.
+
+An experiment is one env id and one or more runs (a seed, variants of the zoo YAML, a folder for the run's
+files). Runs whose hyperparameters differ only in :data:`PACKABLE` keys (MACB's settings, the noise scale) are
+trained together as one ``MADDPG(n_runs=K)`` pack; each run is the same experiment it would be alone (same
+random streams, bit for bit on CPU). The experiment folder holds ``experiment.json`` (what is run) and
+``checkpoint/`` (the latest complete checkpoint: model with optimizer and MACB states, replay buffer, the envs'
+states, the evaluation history and every random generator), from which :func:`resume` continues so that the
+evaluations are identical, array for array, to an uninterrupted run's.
+
+    python -m sb3_macb.zoo.experiment --resume FOLDER      # continue any experiment folder
+
+``sb3-macb train ... --checkpoint-freq N`` / ``--resume RUN_FOLDER`` and ``scripts/reproduce.py`` use it.
+"""
+
+import argparse
+import ast
+import json
+import os
+import pickle
+import random
+import shutil
+import sys
+import time
+from copy import deepcopy
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch as th
+import yaml
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from torch import nn
+
+import sb3_macb
+import sb3_macb.envs  # noqa: F401  (registers the task ids)
+from sb3_macb.callbacks import MultiAgentEvalCallback, make_eval_vec_env
+from sb3_macb.common.atomic import atomic_write
+from sb3_macb.common.snapshot import restore, snapshot
+from sb3_macb.maddpg import MADDPG
+
+DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "hyperparams", "maddpg.yml")
+EXPERIMENT_FILE = "experiment.json"
+CHECKPOINT_DIR = "checkpoint"
+
+# Hyperparameters that may differ between the runs of one pack; everything else must be equal
+PACKABLE = ("exploration", "noise_std")
+# rl_zoo3 keys the experiment runner does not support (they change the env or the training loop)
+UNSUPPORTED = ("normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback", "normalize_kwargs", "n_envs")
+
+
+class ExperimentError(ValueError):
+    """A user's mistake in an experiment's settings or folder (reported in one line by the command line)."""
+
+
+# --- hyperparameter strings, without running code ----------------------------------------------------------------
+
+_SAFE_NAMES: dict[str, Any] = {
+    **{f"{prefix}{name}": getattr(nn, name) for prefix in ("nn.", "th.nn.", "torch.nn.") for name in
+       ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")},
+    **{f"{prefix}{name}": getattr(th.optim, name) for prefix in ("th.optim.", "torch.optim.") for name in
+       ("Adam", "AdamW", "SGD", "RMSprop")},
+}  # fmt: skip
+
+
+def safe_eval(text: str, where: str) -> Any:
+    """
+    Evaluate a hyperparameter string such as ``"dict(net_arch=[400, 300], activation_fn=nn.Tanh)"`` without running
+    code: literals, lists, tuples, dicts, ``dict(...)`` calls and a fixed list of names (activation functions and
+    optimizers from ``torch``) are accepted; anything else is refused with an error naming ``where``.
+
+    :param text: The string from a YAML file or the command line.
+    :param where: What the string is (e.g. ``"policy_kwargs in maddpg.yml"``), for the error message.
+    """
+
+    def convert(node: ast.AST) -> Any:
+        if isinstance(node, ast.Constant):
+            return node.value
+        if isinstance(node, (ast.List, ast.Tuple)):
+            values = [convert(e) for e in node.elts]
+            return values if isinstance(node, ast.List) else tuple(values)
+        if isinstance(node, ast.Dict):
+            return {convert(k): convert(v) for k, v in zip(node.keys, node.values)}  # type: ignore[arg-type]
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub) and isinstance(node.operand, ast.Constant):
+            return -node.operand.value
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+            return {kw.arg: convert(kw.value) for kw in node.keywords if kw.arg is not None}
+        if isinstance(node, (ast.Attribute, ast.Name)):
+            name = ast.unparse(node)
+            if name in _SAFE_NAMES:
+                return _SAFE_NAMES[name]
+        raise ExperimentError(
+            f"{where}: '{ast.unparse(node)}' is not allowed in a hyperparameter string (literals, lists, dicts, dict(...) "
+            f"and {sorted(_SAFE_NAMES)} are). Use rl_zoo3's own train command if you need arbitrary Python."
+        )
+
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise ExperimentError(f"{where}: cannot parse {text!r}: {exc.msg}") from None
+    return convert(tree.body)
+
+
+# --- hyperparameters from the zoo YAML -----------------------------------------------------------------------------
+
+
+def load_hyperparams(
+    env_id: str, conf_file: str | None = None, variants: tuple[str, ...] | list[str] = (), overrides: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """
+    The env's entry of a zoo YAML file with variants and overrides applied (dotted keys set nested values), checked
+    for unknown keys.
+
+    :param env_id: The env id (a top-level key of the file).
+    :param conf_file: The YAML file (default: the package's ``maddpg.yml``).
+    :param variants: Names from the file's ``variants`` section, applied in order.
+    :param overrides: Hyperparameters applied last.
+    """
+    from sb3_macb.zoo.train import apply_overrides, check_hyperparams
+
+    conf_file = conf_file or DEFAULT_CONFIG
+    try:
+        with open(conf_file) as file:
+            config = yaml.safe_load(file) or {}
+    except OSError as exc:
+        raise ExperimentError(f"cannot read the hyperparameter file {conf_file}: {exc.strerror}") from None
+    if env_id not in config:
+        envs = sorted(k for k in config if k != "variants")
+        raise ExperimentError(f"{conf_file} has no entry for env '{env_id}'; it has {envs}")
+    hyperparams = deepcopy(config[env_id])
+    known = config.get("variants") or {}
+    for name in variants:
+        if name not in known:
+            raise ExperimentError(f"Unknown variant '{name}' in {conf_file}; known variants: {sorted(known)}")
+        hyperparams = apply_overrides(hyperparams, known[name])
+    hyperparams = apply_overrides(hyperparams, overrides or {})
+    try:
+        check_hyperparams(hyperparams, f"{conf_file} (env {env_id})")
+    except ValueError as exc:
+        raise ExperimentError(str(exc)) from None
+    return hyperparams
+
+
+def _action_noise(hyperparams: dict[str, Any], action_dim: int) -> ActionNoise | None:
+    kind, std = hyperparams.get("noise_type"), hyperparams.get("noise_std", 0.0)
+    if kind is None:
+        return None
+    mean, sigma = np.zeros(action_dim), float(std) * np.ones(action_dim)
+    if kind == "normal":
+        return NormalActionNoise(mean, sigma)
+    if kind == "ornstein-uhlenbeck":
+        return OrnsteinUhlenbeckActionNoise(mean, sigma)
+    raise ExperimentError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {kind!r}")
+
+
+def model_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """MADDPG's keyword arguments from a run's hyperparameters (strings parsed safely, zoo keys removed)."""
+    bad = [key for key in UNSUPPORTED if hyperparams.get(key) not in (None, False, 1, {}, [])]
+    if bad:
+        raise ExperimentError(f"{bad} are rl_zoo3 options that checkpointed/packed runs do not support")
+    kwargs = {k: v for k, v in hyperparams.items() if k not in ("n_timesteps", "policy", "noise_type", "noise_std", *UNSUPPORTED)}
+    for key, value in list(kwargs.items()):
+        if isinstance(value, str) and key not in ("device",):
+            if key == "learning_rate" and value.startswith("lin_"):
+                from rl_zoo3.utils import linear_schedule
+
+                kwargs[key] = linear_schedule(float(value[4:]))
+            else:
+                kwargs[key] = safe_eval(value, f"hyperparameter '{key}'")
+    if isinstance(kwargs.get("train_freq"), list):
+        kwargs["train_freq"] = tuple(kwargs["train_freq"])
+    return kwargs
+
+
+# --- the experiment --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RunConfig:
+    """
+    One run of an experiment.
+
+    :param seed: The run's seed.
+    :param folder: Where its ``evaluations.npz``, ``config.yml``, ``run.json`` and final ``model.zip`` go.
+    :param variants: Variants of the zoo YAML it was built from (recorded).
+    :param hyperparams: Its hyperparameters (variants and overrides applied).
+    """
+
+    seed: int
+    folder: str
+    variants: list[str] = field(default_factory=list)
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class ExperimentConfig:
+    """
+    What an experiment runs: stored as ``experiment.json`` in its folder and compared on resume.
+
+    :param env_id: A registered env id.
+    :param runs: The runs, trained as one pack.
+    :param n_timesteps: Environment steps per run.
+    :param eval_freq: Evaluate every this many steps (per run).
+    :param eval_episodes: Episodes per evaluation (per run).
+    :param env_kwargs: Keyword arguments for the env.
+    :param command: The command line that started it (recorded in each run's ``run.json``).
+    """
+
+    env_id: str
+    runs: list[RunConfig]
+    n_timesteps: int
+    eval_freq: int = 20
+    eval_episodes: int = 10
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    command: str = ""
+
+    def __post_init__(self) -> None:
+        self.runs = [r if isinstance(r, RunConfig) else RunConfig(**r) for r in self.runs]
+        if not self.runs:
+            raise ExperimentError("An experiment needs at least one run")
+        if self.n_timesteps < 1 or self.eval_freq < 0 or self.eval_episodes < 1:
+            raise ExperimentError("n_timesteps and eval_episodes must be >= 1 and eval_freq >= 0")
+        common = [_pack_key(r.hyperparams) for r in self.runs]
+        if any(key != common[0] for key in common):
+            first = self.runs[0].hyperparams
+            for run in self.runs[1:]:
+                diff = sorted(k for k in set(first) | set(run.hyperparams) if k not in PACKABLE and first.get(k) != run.hyperparams.get(k))
+                if diff:
+                    raise ExperimentError(
+                        f"Runs of one pack may differ only in {list(PACKABLE)}; seed {run.seed} {run.variants} differs in {diff}"
+                    )
+
+    def comparable(self) -> dict[str, Any]:
+        """The settings that must not change on resume (everything but the command line)."""
+        data = json.loads(json.dumps(asdict(self), default=repr))
+        data.pop("command")
+        return data
+
+
+def _pack_key(hyperparams: dict[str, Any]) -> str:
+    return json.dumps({k: v for k, v in hyperparams.items() if k not in PACKABLE}, sort_keys=True, default=repr)
+
+
+class _Checkpointer(BaseCallback):
+    """Saves a checkpoint at the start of a rollout (between two steps, nothing half-done) every ``freq`` steps per run."""
+
+    def __init__(self, experiment: "Experiment", freq: int | None):
+        super().__init__()
+        self.experiment = experiment
+        self.freq = freq
+
+    def _on_rollout_start(self) -> None:
+        steps = self.model.num_timesteps // self.model.n_runs
+        if self.freq and steps // self.freq > self.experiment.last_checkpoint // self.freq:
+            self.experiment.save_checkpoint()
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class Experiment:
+    """
+    Runs an :class:`ExperimentConfig` in ``folder`` as one pack, with checkpoints every ``checkpoint_freq`` steps.
+
+    :param config: What to run.
+    :param folder: The experiment's folder (``experiment.json`` and ``checkpoint/``).
+    :param checkpoint_freq: Steps per run between checkpoints (None: no checkpoints).
+    :param keep_checkpoint: Keep the last checkpoint when the experiment ends (by default it is deleted: the replay
+        buffer makes it large).
+    :param verbose: 1 prints a line per checkpoint and at the end.
+    """
+
+    def __init__(self, config: ExperimentConfig, folder: str, checkpoint_freq: int | None = None,
+                 keep_checkpoint: bool = False, verbose: int = 1):  # fmt: skip
+        if checkpoint_freq is not None and checkpoint_freq < 1:
+            raise ExperimentError(f"checkpoint_freq must be >= 1 step, got {checkpoint_freq}")
+        self.config = config
+        self.folder = folder
+        self.checkpoint_freq = checkpoint_freq
+        self.keep_checkpoint = keep_checkpoint
+        self.verbose = verbose
+        self.model: MADDPG | None = None
+        self.eval_callback: MultiAgentEvalCallback | None = None
+        self.last_checkpoint = 0
+        self._elapsed_before = 0.0
+        self._started = time.time()
+
+    @property
+    def n_runs(self) -> int:
+        return len(self.config.runs)
+
+    @property
+    def checkpoint_root(self) -> str:
+        return os.path.join(self.folder, CHECKPOINT_DIR)
+
+    def status(self) -> str:
+        """``"new"``, ``"started"`` (no checkpoint yet), ``"checkpointed"`` or ``"done"``."""
+        path = os.path.join(self.folder, EXPERIMENT_FILE)
+        if not os.path.isfile(path):
+            return "new"
+        with open(path) as file:
+            if json.load(file).get("done"):
+                return "done"
+        return "checkpointed" if os.path.isfile(os.path.join(self.checkpoint_root, "LATEST")) else "started"
+
+    # --- building --------------------------------------------------------------------------------------------------
+
+    def _build(self) -> tuple[MADDPG, MultiAgentEvalCallback]:
+        cfg = self.config
+        runs = cfg.runs
+        kwargs = model_kwargs(runs[0].hyperparams)
+        explorations = [r.hyperparams.get("exploration") for r in runs]
+        kwargs.pop("exploration", None)
+        env = make_vec_env(cfg.env_id, n_envs=self.n_runs, env_kwargs=cfg.env_kwargs)
+        action_dim = int(np.prod(env.action_space.shape))
+        noises = [_action_noise(r.hyperparams, action_dim) for r in runs]
+        kwargs["learning_starts"] = int(kwargs.get("learning_starts", 100)) * self.n_runs  # counted over all envs
+        model = MADDPG(
+            runs[0].hyperparams.get("policy", "MlpPolicy"),
+            env,
+            n_runs=self.n_runs,
+            run_seeds=[r.seed for r in runs],
+            exploration=explorations,
+            action_noise=None if noises[0] is None else noises,  # type: ignore[arg-type]
+            verbose=0,
+            **kwargs,
+        )
+        return model, self._eval_callback(make_eval_vec_env(cfg.env_id, cfg.eval_episodes, [r.seed for r in runs], cfg.env_kwargs))
+
+    def _eval_callback(self, eval_env: Any) -> MultiAgentEvalCallback:
+        return MultiAgentEvalCallback(
+            eval_env,
+            n_eval_episodes=self.config.eval_episodes,
+            eval_freq=self.config.eval_freq,
+            run_log_paths=[r.folder for r in self.config.runs],
+            save_freq=100,
+            dump_logs=False,
+            verbose=0,
+            warn=False,
+        )
+
+    # --- running -----------------------------------------------------------------------------------------------------
+
+    def run(self, resume: bool = False) -> list[str]:
+        """
+        Train (or, with ``resume``, continue from the latest checkpoint) to the end; return the runs' folders.
+
+        Without ``resume`` the folder must not hold an experiment yet; with it, it must hold this same experiment
+        with a checkpoint (anything else is an error naming the file, never a silent fresh start).
+        """
+        status = self.status()
+        if resume:
+            self._check_same_experiment()
+            if status == "done":
+                if self.verbose:
+                    print(f"{self.folder}: already finished")
+                return [r.folder for r in self.config.runs]
+            if status == "started":
+                raise ExperimentError(
+                    f"{self.checkpoint_root}/LATEST does not exist: the experiment in {self.folder} stopped before its "
+                    f"first checkpoint. Start it again without --resume (in a new folder, or after deleting this one)."
+                )
+            model, callback = self._load_checkpoint()
+        else:
+            if status != "new":
+                raise ExperimentError(
+                    f"{os.path.join(self.folder, EXPERIMENT_FILE)} exists: {self.folder} already holds an experiment "
+                    f"({status}). Resume it with --resume, or choose another folder."
+                )
+            self._write_experiment_file(done=False)
+            model, callback = self._build()
+        self.model, self.eval_callback = model, callback
+        self._started = time.time()
+        total = self.config.n_timesteps * self.n_runs
+        model.learn(
+            total - model.num_timesteps,
+            callback=[callback, _Checkpointer(self, self.checkpoint_freq)],
+            reset_num_timesteps=not resume,
+        )
+        if model.num_timesteps < total:
+            raise RuntimeError(f"Training stopped at {model.num_timesteps // self.n_runs} of {self.config.n_timesteps} steps")
+        self._finish()
+        return [r.folder for r in self.config.runs]
+
+    def _finish(self) -> None:
+        assert self.model is not None and self.eval_callback is not None
+        self.eval_callback.save_evaluations()
+        wall = self._elapsed_before + time.time() - self._started
+        for k, run in enumerate(self.config.runs):
+            solo = self.model if self.n_runs == 1 else self.model.get_run(k)
+            solo.save(os.path.join(run.folder, "model.zip"))
+            with atomic_write(os.path.join(run.folder, "config.yml")) as file:
+                file.write(yaml.safe_dump({"env_id": self.config.env_id, "seed": run.seed, "variants": run.variants,
+                                           "n_timesteps": self.config.n_timesteps, **run.hyperparams}).encode())  # fmt: skip
+            info = {
+                "command": self.config.command,
+                "wall_time_s": round(wall, 1),
+                "n_timesteps": self.config.n_timesteps,
+                "variants": run.variants,
+                "seed": run.seed,
+                "pack_size": self.n_runs,
+                "complete": True,
+                "sb3_macb": sb3_macb.__version__,
+            }
+            with atomic_write(os.path.join(run.folder, "run.json")) as file:
+                file.write(json.dumps(info, indent=1).encode())
+        self._write_experiment_file(done=True)
+        if not self.keep_checkpoint:
+            shutil.rmtree(self.checkpoint_root, ignore_errors=True)
+        if self.verbose:
+            print(f"{self.folder}: finished {self.n_runs} run(s) of {self.config.n_timesteps} steps in {wall:.0f} s")
+
+    def _write_experiment_file(self, done: bool) -> None:
+        data = {"sb3_macb": sb3_macb.__version__, "done": done, "config": asdict(self.config)}
+        with atomic_write(os.path.join(self.folder, EXPERIMENT_FILE)) as file:
+            file.write(json.dumps(data, indent=1, default=repr).encode())
+
+    def _check_same_experiment(self) -> None:
+        path = os.path.join(self.folder, EXPERIMENT_FILE)
+        if not os.path.isfile(path):
+            raise ExperimentError(f"{path} does not exist: {self.folder} holds no experiment to resume")
+        try:
+            with open(path) as file:
+                saved = json.load(file)
+            saved_config = ExperimentConfig(**{**saved["config"], "runs": saved["config"]["runs"]})
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ExperimentError(f"{path} is not a readable experiment file ({exc})") from None
+        if saved.get("sb3_macb") != sb3_macb.__version__:
+            raise ExperimentError(
+                f"{path} was written by sb3_macb {saved.get('sb3_macb')}; this is {sb3_macb.__version__}. A checkpoint "
+                f"continues only with the version that wrote it (random streams and formats may differ)."
+            )
+        mine, theirs = self.config.comparable(), saved_config.comparable()
+        if mine != theirs:
+            diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+            raise ExperimentError(f"The settings differ from those in {path} in {diff}: resume with the same command")
+
+    # --- checkpoints -------------------------------------------------------------------------------------------------
+
+    def save_checkpoint(self) -> str:
+        """
+        Write a complete checkpoint into a new folder, then point ``checkpoint/LATEST`` at it (an atomic rename), then
+        delete the older one: a process killed at any moment leaves the previous checkpoint usable.
+        """
+        assert self.model is not None and self.eval_callback is not None
+        model, callback = self.model, self.eval_callback
+        steps = model.num_timesteps // self.n_runs
+        name = f"step_{steps}"
+        root = self.checkpoint_root
+        tmp = os.path.join(root, f".{name}.tmp")
+        shutil.rmtree(tmp, ignore_errors=True)
+        os.makedirs(tmp)
+        model.save(os.path.join(tmp, "model.zip"))
+        with atomic_write(os.path.join(tmp, "buffer.npz")) as file:
+            np.savez(file, **model.replay_buffer.state_arrays())  # type: ignore[attr-defined]
+        state = {
+            "sb3_macb": sb3_macb.__version__,
+            "config": self.config.comparable(),
+            "steps": steps,
+            "elapsed": self._elapsed_before + time.time() - self._started,
+            "train_env": snapshot(model.env),
+            "eval_env": snapshot(callback.eval_env),
+            "callback": callback.get_state(),
+            "rng": {"numpy": np.random.get_state(), "python": random.getstate(), "torch": th.get_rng_state()},
+        }
+        with atomic_write(os.path.join(tmp, "state.pkl")) as file:
+            pickle.dump(state, file, protocol=5)
+        final = os.path.join(root, name)
+        shutil.rmtree(final, ignore_errors=True)
+        os.replace(tmp, final)
+        with atomic_write(os.path.join(root, "LATEST")) as file:
+            file.write(name.encode())
+        for entry in os.listdir(root):
+            if entry.startswith("step_") and entry != name:
+                shutil.rmtree(os.path.join(root, entry), ignore_errors=True)
+        callback.save_evaluations()  # the files beside the checkpoint show the evaluations reached so far
+        self.last_checkpoint = steps
+        if self.verbose:
+            print(f"{self.folder}: checkpoint at {steps} of {self.config.n_timesteps} steps per run", flush=True)
+        return final
+
+    def _load_checkpoint(self) -> tuple[MADDPG, MultiAgentEvalCallback]:
+        root = self.checkpoint_root
+        latest = os.path.join(root, "LATEST")
+        try:
+            with open(latest) as file:
+                name = file.read().strip()
+        except OSError:
+            raise ExperimentError(f"{latest} cannot be read: no checkpoint to resume from") from None
+        folder = os.path.join(root, name)
+        state_file = os.path.join(folder, "state.pkl")
+        try:
+            with open(state_file, "rb") as file:
+                state = pickle.load(file)
+        except Exception as exc:  # noqa: BLE001 (any unpickling failure means a damaged file)
+            raise ExperimentError(f"{state_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+        if state.get("sb3_macb") != sb3_macb.__version__:
+            raise ExperimentError(f"{state_file} was written by sb3_macb {state.get('sb3_macb')}, this is {sb3_macb.__version__}")
+        if state.get("config") != self.config.comparable():
+            raise ExperimentError(f"{state_file} belongs to other settings than {os.path.join(self.folder, EXPERIMENT_FILE)}")
+        model_file = os.path.join(folder, "model.zip")
+        try:
+            model = MADDPG.load(model_file, env=None, device="cpu")
+        except Exception as exc:  # noqa: BLE001
+            raise ExperimentError(f"{model_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+        model.set_env(restore(state["train_env"]), force_reset=False)
+        buffer_file = os.path.join(folder, "buffer.npz")
+        try:
+            with np.load(buffer_file) as arrays:
+                model.replay_buffer.load_state_arrays(arrays)  # type: ignore[attr-defined]
+        except Exception as exc:  # noqa: BLE001
+            raise ExperimentError(f"{buffer_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+        callback = self._eval_callback(restore(state["eval_env"]))
+        callback.set_state(state["callback"])
+        np.random.set_state(state["rng"]["numpy"])
+        random.setstate(state["rng"]["python"])
+        th.set_rng_state(state["rng"]["torch"])
+        self.last_checkpoint = state["steps"]
+        self._elapsed_before = state["elapsed"]
+        if self.verbose:
+            print(f"{self.folder}: resuming at {state['steps']} of {self.config.n_timesteps} steps per run", flush=True)
+        return model, callback
+
+
+def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: int = 1) -> Experiment:
+    """The experiment stored in ``folder`` (its ``experiment.json``), to resume."""
+    path = os.path.join(folder, EXPERIMENT_FILE)
+    try:
+        with open(path) as file:
+            saved = json.load(file)
+        config = ExperimentConfig(**saved["config"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ExperimentError(f"{path} is missing or not a readable experiment file ({exc})") from None
+    return Experiment(config, folder, checkpoint_freq=checkpoint_freq, verbose=verbose)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Resume an experiment folder (sb3_macb.zoo.experiment).")
+    parser.add_argument("--resume", required=True, metavar="FOLDER", help="the experiment's folder")
+    parser.add_argument("--checkpoint-freq", type=int, default=None, help="steps per run between checkpoints")
+    parser.add_argument("--num-threads", type=int, default=1)
+    args = parser.parse_args(argv)
+    th.set_num_threads(args.num_threads)
+    try:
+        load_experiment(args.resume, checkpoint_freq=args.checkpoint_freq).run(resume=True)
+    except ExperimentError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
