@@ -105,14 +105,17 @@ def make_eval_vec_env(
     """
     The evaluation env of one run or of a pack: ``n_eval_episodes`` envs per run (one evaluation = one batch of
     episodes), run ``k``'s ``i``-th env seeded ``seeds[k] + i`` (as SB3's ``make_vec_env(seed=...)`` seeds them).
+    The paper's tasks are vectorized (:class:`~sb3_macb.envs.vec_tasks.TaskVecEnv`).
 
     :param env_id: A registered env id.
     :param n_eval_episodes: Episodes per evaluation and run.
     :param seeds: One seed per run (None: unseeded).
     :param env_kwargs: Keyword arguments for the env.
     """
-    env = make_vec_env(env_id, n_envs=n_eval_episodes * len(seeds), env_kwargs=env_kwargs)
-    env._seeds = [None if seed is None else seed + i for seed in seeds for i in range(n_eval_episodes)]
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    env = make_task_vec_env(env_id, n_eval_episodes * len(seeds), env_kwargs)
+    env.unwrapped._seeds = [None if seed is None else seed + i for seed in seeds for i in range(n_eval_episodes)]
     return env
 
 

@@ -1,57 +1,75 @@
 """
-Run the paper's experiments with the zoo's YAML and ``sb3-macb train``, and file the evaluation data as
-``results/<Task>-<reward>/<variant>/seed_<s>/evaluations.npz`` with the run's wall time and command in
-``run.json`` beside it.
+Run the paper's experiments with the zoo's YAML, several runs packed in one process, with checkpoints, and file
+each run's evaluations as ``results/<Task>-<reward>[-<suffix>]/<variant>/seed_<s>/evaluations.npz`` with
+``config.yml`` and ``run.json`` (command, wall time, ``complete``) beside it.
 
-    python scripts/reproduce.py --task comm-sparse --variants maddpg macb_joint --seeds 0 1 2 -n 200000 --fast -j 2
-    python scripts/reproduce.py --task nav --variants maddpg ddpg macb_joint ddpg_macb --seeds 0 1 2
+    python scripts/reproduce.py --task comm-sparse --variants maddpg macb_joint macb_constant --seeds 0 1 2 \\
+        --suffix paper --pack 3 -j 2
+    python scripts/reproduce.py --task comm-sparse --variants maddpg macb_joint macb_local macb_constant macb_k32 \\
+        --seeds 0 1 2 3 4 --fast --suffix 4e4 --pack 5 -j 2
 
-Variants are those of ``zoo/hyperparams/maddpg.yml``; ``--fast`` adds the ``fast`` variant (64-64 networks).
-Runs already filed are skipped, so the script can be re-run to complete a set.
+Variants are those of ``zoo/hyperparams/maddpg.yml``; ``--fast`` adds the ``fast`` variant (64-64 networks). The
+runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
+would be alone). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; running the same command
+again resumes unfinished packs from their checkpoints and skips finished ones, so the script can be stopped at
+any moment and re-run to go on. The ``evaluations.npz`` under results/ is rewritten at every checkpoint: it always
+holds the evaluations reached so far (``run.json`` says ``complete`` only at the end).
 """
 
 import argparse
 import json
+import multiprocessing
 import os
+import shlex
 import shutil
-import subprocess
 import sys
-import tempfile
-import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 
 TASKS = {
-    "comm-sparse": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-sparse", "reward:'sparse'"),
-    "comm-distance": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-distance", "reward:'distance'"),
-    "nav": ("sb3_macb/TwoAgentNavigation-v0", "TwoAgentNavigation-sparse", None),
+    "comm-sparse": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-sparse", {"reward": "sparse"}),
+    "comm-distance": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-distance", {"reward": "distance"}),
+    "nav": ("sb3_macb/TwoAgentNavigation-v0", "TwoAgentNavigation-sparse", {}),
 }
 
 
-def run_one(task: str, variant: str, seed: int, n_timesteps: int, fast: bool, out_root: str) -> str:
-    env_id, folder, env_kwargs = TASKS[task]
-    target = os.path.join(out_root, folder, variant, f"seed_{seed}")
-    if os.path.isfile(os.path.join(target, "evaluations.npz")):
-        return f"{target}: already there"
-    variants = [variant] + (["fast"] if fast else [])
-    with tempfile.TemporaryDirectory() as logs:
-        cmd = [sys.executable, "-m", "sb3_macb", "train", "--env", env_id, "--seed", str(seed), "-n", str(n_timesteps),
-               "-f", logs, "--variant", ",".join(variants), "--no-progress", "--verbose", "0"]  # fmt: skip
-        if env_kwargs:
-            cmd += ["--env-kwargs", env_kwargs]
-        start = time.time()
-        result = subprocess.run(cmd, capture_output=True, text=True)
-        wall = time.time() - start
-        if result.returncode != 0:
-            return f"{target}: FAILED\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}"
-        runs = [os.path.join(dp, f) for dp, _, files in os.walk(logs) for f in files if f == "evaluations.npz"]
-        os.makedirs(target, exist_ok=True)
-        shutil.copy(runs[0], os.path.join(target, "evaluations.npz"))
-        printable = ["sb3-macb", *cmd[3:]]
-        printable[printable.index("-f") + 1] = "LOGDIR"
-        with open(os.path.join(target, "run.json"), "w") as file:
-            json.dump({"command": " ".join(printable), "wall_time_s": round(wall, 1), "n_timesteps": n_timesteps,
-                       "variants": variants, "seed": seed}, file, indent=1)  # fmt: skip
-    return f"{target}: {wall:.0f} s"
+def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
+    """The packs: (work folder, [(variant, seed), ...]); the runs of one seed together, at most ``pack`` per pack."""
+    _, folder, _ = TASKS[args.task]
+    name = folder + (f"-{args.suffix}" if args.suffix else "")
+    packs = []
+    for seed in args.seeds:
+        for start in range(0, len(args.variants), args.pack):
+            variants = args.variants[start : start + args.pack]
+            tag = f"seed_{seed}" + ("" if len(args.variants) <= args.pack else f"_part{start // args.pack}")
+            packs.append((os.path.join(args.work, name, tag), [(v, seed) for v in variants]))
+    return packs
+
+
+def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], command: str) -> str:
+    import torch as th
+
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, RunConfig, load_hyperparams
+
+    th.set_num_threads(1)
+    env_id, folder, env_kwargs = TASKS[args.task]
+    root = os.path.join(args.out, folder + (f"-{args.suffix}" if args.suffix else ""))
+    runs = []
+    for variant, seed in jobs:
+        variants = [variant] + (["fast"] if args.fast else [])
+        hyperparams = load_hyperparams(env_id, variants=variants)
+        runs.append(RunConfig(seed=seed, folder=os.path.join(root, variant, f"seed_{seed}"), variants=variants, hyperparams=hyperparams))
+    config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
+    experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq)
+    status = experiment.status()
+    if status == "started":  # stopped before its first checkpoint: nothing to resume, start it over
+        print(f"{work}: stopped before its first checkpoint; starting it again", flush=True)
+        shutil.rmtree(work)
+        status = "new"
+    try:
+        experiment.run(resume=status != "new")
+    except ExperimentError as exc:
+        return f"{work}: ERROR {exc}"
+    return f"{work}: done ({', '.join(f'{v} seed {s}' for v, s in jobs)})"
 
 
 def main() -> None:
@@ -59,15 +77,24 @@ def main() -> None:
     parser.add_argument("--task", choices=sorted(TASKS), required=True)
     parser.add_argument("--variants", nargs="+", required=True)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("-n", "--n-timesteps", type=int, default=800_000)
+    parser.add_argument("-n", "--n-timesteps", type=int, default=800_000, help="steps per run")
     parser.add_argument("--fast", action="store_true", help="64-64 networks (the 'fast' variant)")
-    parser.add_argument("-j", "--jobs", type=int, default=1, help="runs in parallel (one thread each)")
+    parser.add_argument("--pack", type=int, default=1, help="runs trained together in one process (at most)")
+    parser.add_argument("-j", "--jobs", type=int, default=1, help="packs in parallel (one thread each)")
+    parser.add_argument("--checkpoint-freq", type=int, default=20_000, help="steps per run between checkpoints")
+    parser.add_argument("--suffix", default="", help="results/<Task>-<reward>-SUFFIX/")
     parser.add_argument("-o", "--out", default="results")
+    parser.add_argument("--work", default=os.path.join("logs", "reproduce"), help="checkpoints (not for git)")
     args = parser.parse_args()
-    jobs = [(args.task, v, s, args.n_timesteps, args.fast, args.out) for s in args.seeds for v in args.variants]
-    with ThreadPoolExecutor(args.jobs) as pool:
-        for line in pool.map(lambda job: run_one(*job), jobs):
-            print(line, flush=True)
+    if args.pack < 1:
+        parser.error("--pack must be >= 1")
+    command = "python scripts/reproduce.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    packs = plan(args)
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
+        futures = [pool.submit(run_pack, args, work, jobs, command) for work, jobs in packs]
+        for future in futures:
+            print(future.result(), flush=True)
 
 
 if __name__ == "__main__":

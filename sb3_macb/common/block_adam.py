@@ -1,6 +1,7 @@
 """Adam applied block by block to stacked parameters, so that a run's update does not depend on its neighbours."""
 
 from collections.abc import Iterable
+from typing import Any
 
 import torch as th
 
@@ -28,6 +29,22 @@ class BlockAdam(th.optim.Adam):
         super().__init__(params, **kwargs)
         blocks = blocks or []
         self._blocks = {id(p): (blocks[i] if i < len(blocks) and blocks[i] else None) for i, p in enumerate(params)}
+        self._cache: dict[int, Any] = {}
+
+    def _views(self, p: th.Tensor, state: dict[str, Any], amsgrad: bool) -> tuple[list[tuple[int, int]], list[list[th.Tensor]]]:
+        """The blocks of ``p`` and the views of its parameter and state tensors (cached: they are updated in place)."""
+        cached = self._cache.get(id(p))
+        if cached is None or cached[0] is not state["exp_avg"]:
+            bounds = self._blocks.get(id(p)) or [(0, p.shape[0] if p.dim() else 1)]
+            tensors = [p, state["exp_avg"], state["exp_avg_sq"], *([state["max_exp_avg_sq"]] if amsgrad else [])]
+            views = [[t[a:b] if t.dim() else t for a, b in bounds] for t in tensors]
+            cached = (state["exp_avg"], bounds, views)
+            self._cache[id(p)] = cached
+        return cached[1], cached[2]
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._cache = {}
+        super().load_state_dict(state_dict)
 
     @th.no_grad()
     def step(self, closure=None):  # type: ignore[no-untyped-def]
@@ -36,7 +53,13 @@ class BlockAdam(th.optim.Adam):
             with th.enable_grad():
                 loss = closure()
         for group in self.param_groups:
-            lists: list[list[th.Tensor]] = [[], [], [], [], [], []]
+            amsgrad = group["amsgrad"]
+            params: list[th.Tensor] = []
+            grads: list[th.Tensor] = []
+            exp_avgs: list[th.Tensor] = []
+            exp_avg_sqs: list[th.Tensor] = []
+            max_exp_avg_sqs: list[th.Tensor] = []
+            steps: list[th.Tensor] = []
             for p in group["params"]:
                 if p.grad is None:
                     continue
@@ -47,17 +70,18 @@ class BlockAdam(th.optim.Adam):
                     state["step"] = th.zeros((), dtype=th.float32, device=p.device)
                     state["exp_avg"] = th.zeros_like(p, memory_format=th.preserve_format)
                     state["exp_avg_sq"] = th.zeros_like(p, memory_format=th.preserve_format)
-                    if group["amsgrad"]:
+                    if amsgrad:
                         state["max_exp_avg_sq"] = th.zeros_like(p, memory_format=th.preserve_format)
                 state["step"] += 1  # once per parameter, read by every block
-                tensors = [p, p.grad, state["exp_avg"], state["exp_avg_sq"]]
-                if group["amsgrad"]:
-                    tensors.append(state["max_exp_avg_sq"])
-                for start, stop in self._blocks.get(id(p)) or [(0, p.shape[0] if p.dim() else 1)]:
-                    for out, tensor in zip(lists, tensors):
-                        out.append(tensor[start:stop] if tensor.dim() else tensor)
-                    lists[5].append(state["step"])
-            params, grads, exp_avgs, exp_avg_sqs, max_exp_avg_sqs, steps = lists
+                bounds, views = self._views(p, state, amsgrad)
+                grad = p.grad
+                params += views[0]
+                grads += [grad[a:b] if grad.dim() else grad for a, b in bounds]
+                exp_avgs += views[1]
+                exp_avg_sqs += views[2]
+                if amsgrad:
+                    max_exp_avg_sqs += views[3]
+                steps += [state["step"]] * len(bounds)
             if not params:
                 continue
             beta1, beta2 = group["betas"]
@@ -68,7 +92,7 @@ class BlockAdam(th.optim.Adam):
                 exp_avg_sqs,
                 max_exp_avg_sqs,
                 steps,
-                amsgrad=group["amsgrad"],
+                amsgrad=amsgrad,
                 lr=group["lr"],
                 beta1=beta1,
                 beta2=beta2,

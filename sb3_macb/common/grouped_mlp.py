@@ -207,6 +207,10 @@ class GroupedMLP(nn.Module):
                 bias[idx] = th.rand(len(idx), n_out, generator=gen) * 2 - 1
             self.weights.append(nn.Parameter(weight * bound.view(n_groups, 1, 1)))
             self.biases.append(nn.Parameter(bias * bound.view(n_groups, 1)))
+        # Networks with a large layer take the per-group oneDNN path (bound by arithmetic); small ones (e.g. 64-64),
+        # bound by the number of calls, take one batched call per layer for all groups. The choice depends only
+        # on the layer sizes, so a run computes the same way alone or in a pack.
+        self._large = max(a * b for a, b in zip(sizes[:-1], sizes[1:])) >= ONEDNN_MIN_WEIGHTS
         ids = runs if group_blocks is None else np.asarray(group_blocks)
         edges = [0, *(int(g) for g in np.flatnonzero(ids[1:] != ids[:-1]) + 1), n_groups]
         self.block_bounds = list(zip(edges[:-1], edges[1:]))  # row ranges of the stacked tensors, one per block
@@ -241,7 +245,7 @@ class GroupedMLP(nn.Module):
             biases = [b[groups] for b in biases]
             in_mask = None if in_mask is None else in_mask[groups]
             out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
-        if self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32:
+        if self._large and self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32:
             # masked weights are zero already; the Function masks their gradients instead of the weights
             out_masks = None if self._full_out else (out_mask, out_bias_mask)
             return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, *weights, *biases)

@@ -8,11 +8,13 @@ cannot be pickled and hold no simulation state) are left out and taken from a fr
 """
 
 import copy
+import inspect
 import io
 import pickle
 from typing import Any
 
 from gymnasium.utils import EzPickle
+from stable_baselines3.common.vec_env import VecEnvWrapper
 
 
 def _is_render_handle(value: Any) -> bool:
@@ -29,8 +31,16 @@ def _restore(obj: Any, state: dict[str, Any]) -> None:
             setattr(obj, name, getattr(fresh, name))
 
 
+def _restore_vec_wrapper(obj: Any, state: dict[str, Any]) -> None:
+    obj.__dict__.update(state)
+    obj.class_attributes = dict(inspect.getmembers(obj.__class__))  # what VecEnvWrapper.__init__ computes
+
+
 class _SnapshotPickler(pickle.Pickler):
     def reducer_override(self, obj: Any) -> Any:
+        if isinstance(obj, VecEnvWrapper):  # its class_attributes (computed from the class) hold unpicklable proxies
+            state = {name: value for name, value in obj.__dict__.items() if name != "class_attributes"}
+            return (object.__new__, (type(obj),), state, None, None, _restore_vec_wrapper)
         if isinstance(obj, EzPickle) and not isinstance(obj, type):
             state = {name: value for name, value in obj.__dict__.items() if not _is_render_handle(value)}
             dropped = [name for name in obj.__dict__ if name not in state]

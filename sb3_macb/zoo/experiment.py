@@ -31,7 +31,6 @@ import numpy as np
 import torch as th
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from torch import nn
 
@@ -40,6 +39,7 @@ import sb3_macb.envs  # noqa: F401  (registers the task ids)
 from sb3_macb.callbacks import MultiAgentEvalCallback, make_eval_vec_env
 from sb3_macb.common.atomic import atomic_write
 from sb3_macb.common.snapshot import restore, snapshot
+from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.maddpg import MADDPG
 
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "hyperparams", "maddpg.yml")
@@ -314,7 +314,7 @@ class Experiment:
         kwargs = model_kwargs(runs[0].hyperparams)
         explorations = [r.hyperparams.get("exploration") for r in runs]
         kwargs.pop("exploration", None)
-        env = make_vec_env(cfg.env_id, n_envs=self.n_runs, env_kwargs=cfg.env_kwargs)
+        env = make_task_vec_env(cfg.env_id, self.n_runs, cfg.env_kwargs)
         action_dim = int(np.prod(env.action_space.shape))
         noises = [_action_noise(r.hyperparams, action_dim) for r in runs]
         kwargs["learning_starts"] = int(kwargs.get("learning_starts", 100)) * self.n_runs  # counted over all envs

@@ -1,0 +1,257 @@
+"""
+The paper's two tasks as one vectorized SB3 ``VecEnv``: the particle physics of N copies in numpy arrays.
+
+The paper's protocol steps ten evaluation episodes after every training episode, so evaluation steps ten
+environments for each training step; stepping them one Python object at a time (mpe2's world, PettingZoo,
+the joint env, SB3's DummyVecEnv) costs more than the networks do at small sizes. This VecEnv steps all copies
+at once with the same physics (MPE's: force = 5 * u, dt 0.1, damping 0.25, soft contact forces between colliding
+agents), observations, rewards, success and collision infos as :mod:`sb3_macb.envs.tasks` (the tests compare them
+step by step), each copy resetting from its own random generator (seeded as gymnasium seeds an env). Infos carry
+what the joint env's do (``agent_rewards``, ``agent_infos``, ``is_success``, ``TimeLimit.truncated``,
+``terminal_observation``) and, with :func:`make_task_vec_env`'s ``VecMonitor``, ``episode``.
+
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+    venv = make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", n_envs=10, env_kwargs={"reward": "sparse"})
+"""
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+
+from sb3_macb.envs.joint_env import AgentLayout
+
+FORCE_SCALE = 5.0
+DT = 0.1
+DAMPING = 0.25
+CONTACT_FORCE = 1e2
+CONTACT_MARGIN = 1e-3
+
+TASK_IDS = ("sb3_macb/TwoAgentNavigation-v0", "sb3_macb/CommunicativeNavigation-v0")
+
+
+class TaskVecEnv(VecEnv):
+    """
+    ``n_envs`` copies of one of the paper's tasks, stepped together.
+
+    :param task: ``"navigation"`` (2-Agent Navigation) or ``"communication"`` (Communicative Navigation).
+    :param n_envs: Number of copies.
+    :param max_cycles: Steps per episode.
+    :param reward: Communicative Navigation: ``"sparse"`` or ``"distance"``.
+    :param reward_radius: The sparse reward's radius (0.125 for navigation, 0.15 for communication when None).
+    :param success_radius: The success radius (0.25 for navigation, 0.15 for communication when None).
+    :param collision_penalty: Navigation: each colliding agent costs -1.
+    :param terminate_on_success: End an episode on success.
+    """
+
+    def __init__(
+        self,
+        task: str,
+        n_envs: int = 1,
+        max_cycles: int = 20,
+        reward: str = "sparse",
+        reward_radius: float | None = None,
+        success_radius: float | None = None,
+        collision_penalty: bool = True,
+        terminate_on_success: bool = False,
+    ):
+        if task not in ("navigation", "communication"):
+            raise ValueError(f"task must be 'navigation' or 'communication', got {task!r}")
+        if reward not in ("sparse", "distance"):
+            raise ValueError(f"reward must be 'sparse' or 'distance', got {reward!r}")
+        if max_cycles < 1 or n_envs < 1:
+            raise ValueError("max_cycles and n_envs must be >= 1")
+        self.task = task
+        self.max_cycles = max_cycles
+        self.reward_type = reward
+        self.collision_penalty = collision_penalty
+        self.terminate_on_success = terminate_on_success
+        nav = task == "navigation"
+        self.reward_radius = (0.125 if nav else 0.15) if reward_radius is None else float(reward_radius)
+        self.success_radius = (0.25 if nav else 0.15) if success_radius is None else float(success_radius)
+        self.size = 0.125 if nav else 0.075
+        if nav:
+            self.agent_layout = AgentLayout(("agent_0", "agent_1"), (10, 10), (2, 2))
+            self.n_landmarks, self.n_movers = 2, 2
+            low, high = -np.ones(4, dtype=np.float32), np.ones(4, dtype=np.float32)
+        else:
+            self.agent_layout = AgentLayout(("speaker_0", "listener_0"), (3, 11), (3, 2))
+            self.n_landmarks, self.n_movers = 3, 1
+            low = np.array([0, 0, 0, -1, -1], dtype=np.float32)
+            high = np.ones(5, dtype=np.float32)
+        obs_space = spaces.Box(-np.inf, np.inf, (self.agent_layout.obs_dim,), dtype=np.float32)
+        self.render_mode = None
+        super().__init__(n_envs, obs_space, spaces.Box(low, high, dtype=np.float32))
+        self._low, self._high = low.astype(np.float64), high.astype(np.float64)
+        n = n_envs
+        self.rngs = [seeding.np_random()[0] for _ in range(n)]
+        n_entities = 2 + self.n_landmarks  # agents first, then landmarks (mpe2's entity order)
+        self.pos = np.zeros((n, n_entities, 2))
+        self.vel = np.zeros((n, 2, 2))
+        self.comm = np.zeros((n, 3))  # the speaker's message (communication)
+        self.goal = np.zeros(n, dtype=np.int64)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.success_ever = np.zeros(n, dtype=bool)
+        self.episode_collisions = np.zeros(n, dtype=np.int64)
+        self._actions: np.ndarray | None = None
+
+    # --- episodes ------------------------------------------------------------------------------------------------
+
+    _colors = np.array([[0.65, 0.15, 0.15], [0.15, 0.65, 0.15], [0.15, 0.15, 0.65]])
+
+    def _reset_env(self, i: int) -> None:
+        rng = self.rngs[i]
+        if self.task == "communication":
+            self.goal[i] = int(rng.integers(self.n_landmarks))
+        for entity in range(self.pos.shape[1]):  # one draw per entity, in mpe2's order
+            self.pos[i, entity] = rng.uniform(-1, +1, 2)
+        self.vel[i] = 0.0
+        self.comm[i] = 0.0
+        self.steps[i] = 0
+        self.success_ever[i] = False
+        self.episode_collisions[i] = 0
+
+    def reset(self) -> np.ndarray:
+        for i in range(self.num_envs):
+            if self._seeds[i] is not None:
+                self.rngs[i] = seeding.np_random(self._seeds[i])[0]
+            self._reset_env(i)
+        self._reset_seeds()
+        self._reset_options()
+        return self._observations()
+
+    def _observations(self, envs: Any = slice(None)) -> np.ndarray:
+        pos, vel = self.pos[envs], self.vel[envs]
+        if self.task == "navigation":
+            parts = []
+            for a, other in ((0, 1), (1, 0)):
+                me = pos[:, a]
+                parts += [vel[:, a], me, pos[:, 2] - me, pos[:, 3] - me, pos[:, other] - me]
+            return np.concatenate(parts, axis=1).astype(np.float32)
+        listener = pos[:, 1]
+        landmarks = [pos[:, 2 + j] - listener for j in range(3)]
+        speaker_obs = self._colors[self.goal[envs]]
+        return np.concatenate([speaker_obs, vel[:, 1], *landmarks, self.comm[envs]], axis=1).astype(np.float32)
+
+    # --- stepping --------------------------------------------------------------------------------------------------
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        assert self._actions is not None, "step_async was not called"
+        actions = np.asarray(self._actions, dtype=np.float32).reshape(self.num_envs, -1)
+        if actions.shape[1] != self.agent_layout.action_dim:
+            raise ValueError(f"Expected joint actions of size {self.agent_layout.action_dim}, got {actions.shape[1]}")
+        if not np.all(np.isfinite(actions)):
+            raise ValueError("NaN or infinite value in the actions")
+        actions = np.clip(actions.astype(np.float64), self._low, self._high)
+        pos, vel = self.pos, self.vel
+        if self.task == "navigation":
+            force = FORCE_SCALE * actions.reshape(self.num_envs, 2, 2)
+            delta = pos[:, 0] - pos[:, 1]
+            dist = np.sqrt(np.sum(np.square(delta), axis=1, keepdims=True))
+            penetration = np.logaddexp(0, -(dist - 2 * self.size) / CONTACT_MARGIN) * CONTACT_MARGIN
+            contact = CONTACT_FORCE * delta / dist * penetration
+            force[:, 0] = contact + force[:, 0]
+            force[:, 1] = -contact + force[:, 1]
+            movers = slice(0, 2)
+        else:
+            force = np.zeros((self.num_envs, 2, 2))
+            force[:, 1] = FORCE_SCALE * actions[:, 3:5]
+            self.comm = actions[:, 0:3] + 0.0
+            movers = slice(1, 2)
+        pos[:, movers] += vel[:, movers] * DT
+        vel[:, movers] = vel[:, movers] * (1 - DAMPING)
+        vel[:, movers] += force[:, movers] * DT  # (mass 1)
+
+        rewards, success, collisions = self._evaluate()
+        self.steps += 1
+        self.success_ever |= success
+        self.episode_collisions += collisions
+        terminated = success & self.terminate_on_success
+        truncated = (self.steps >= self.max_cycles) & ~terminated
+        dones = terminated | truncated
+        obs = self._observations()
+        infos: list[dict[str, Any]] = []
+        n_agents = self.agent_layout.n_agents
+        for i in range(self.num_envs):
+            agent_info = {
+                "success": bool(success[i]),
+                "is_success": bool(self.success_ever[i]),
+                "collisions": int(collisions[i]),
+                "episode_collisions": int(self.episode_collisions[i]),
+            }
+            info = {
+                "agent_rewards": np.full(n_agents, rewards[i], dtype=np.float32),
+                "agent_infos": {agent: agent_info for agent in self.agent_layout.agents},
+                "is_success": bool(self.success_ever[i]),
+                "TimeLimit.truncated": bool(truncated[i]),
+            }
+            if dones[i]:
+                info["terminal_observation"] = obs[i]
+                self._reset_env(i)
+            infos.append(info)
+        if dones.any():
+            obs[dones] = self._observations(dones)
+        return obs, rewards.astype(np.float32), dones, infos
+
+    def _evaluate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Shared rewards, success now, agent pairs overlapping now."""
+        pos = self.pos
+        if self.task == "navigation":
+            agents, landmarks = pos[:, :2], pos[:, 2:]
+            nearest = np.linalg.norm(landmarks[:, :, None, :] - agents[:, None, :, :], axis=-1).min(axis=2)
+            overlapping = (np.linalg.norm(agents[:, 0] - agents[:, 1], axis=-1) < 2 * self.size).astype(np.int64)
+            uncovered = np.sum(nearest > self.reward_radius, axis=1)
+            total = 2 * uncovered + (2 * overlapping if self.collision_penalty else 0)
+            return -total / 2.0 / 2, np.all(nearest <= self.success_radius, axis=1), overlapping
+        goal = pos[np.arange(self.num_envs), 2 + self.goal]
+        distance = np.linalg.norm(pos[:, 1] - goal, axis=-1)
+        if self.reward_type == "sparse":
+            rewards = np.where(distance <= self.reward_radius, 0.0, -1.0)
+        else:
+            rewards = -(distance**2)
+        return rewards, distance <= self.success_radius, np.zeros(self.num_envs, dtype=np.int64)
+
+    # --- VecEnv's other methods --------------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        pass
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [getattr(self, attr_name)] * len(self._get_indices(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
+        raise AttributeError(f"TaskVecEnv has no per-env method {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return [False] * len(self._get_indices(indices))
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None] * self.num_envs
+
+
+def make_task_vec_env(env_id: str, n_envs: int, env_kwargs: dict[str, Any] | None = None) -> VecEnv:
+    """
+    ``n_envs`` copies of a task id as one :class:`TaskVecEnv` with SB3's ``VecMonitor`` (episode returns and
+    lengths in ``info["episode"]``); other env ids as SB3's ``make_vec_env`` builds them.
+
+    :param env_id: A gymnasium id (the two tasks are vectorized).
+    :param n_envs: Number of envs.
+    :param env_kwargs: Keyword arguments of the env (the tasks': ``max_cycles``, ``reward``, the radii, ...).
+    """
+    kwargs = dict(env_kwargs or {})
+    if env_id in TASK_IDS and kwargs.get("render_mode") is None:
+        kwargs.pop("render_mode", None)
+        task = "navigation" if env_id == TASK_IDS[0] else "communication"
+        return VecMonitor(TaskVecEnv(task, n_envs, **kwargs))
+    from stable_baselines3.common.env_util import make_vec_env
+
+    return make_vec_env(env_id, n_envs=n_envs, env_kwargs=kwargs)
