@@ -192,7 +192,7 @@ class TaskVecEnv(VecEnv):
                 "TimeLimit.truncated": bool(truncated[i]),
             }
             if dones[i]:
-                info["terminal_observation"] = obs[i]
+                info["terminal_observation"] = obs[i].copy()  # (the row is overwritten by the reset below)
                 self._reset_env(i)
             infos.append(info)
         if dones.any():

@@ -1,0 +1,213 @@
+"""Checkpoints and resume, atomic files, safe hyperparameter strings, the vectorized task env."""
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+
+import numpy as np
+import pytest
+from stable_baselines3.common.env_util import make_vec_env
+
+import sb3_macb
+from sb3_macb import MADDPG
+from sb3_macb.envs.vec_tasks import make_task_vec_env
+from sb3_macb.zoo.experiment import (
+    Experiment,
+    ExperimentConfig,
+    ExperimentError,
+    RunConfig,
+    load_experiment,
+    load_hyperparams,
+    safe_eval,
+)
+
+COMM = "sb3_macb/CommunicativeNavigation-v0"
+NAV = "sb3_macb/TwoAgentNavigation-v0"
+
+# A script that runs a small two-run pack with checkpoints; argv: root tag steps [resume]
+PACK_SCRIPT = """
+import sys, torch as th
+th.set_num_threads(1)
+from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
+root, tag, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
+hp = [load_hyperparams("{env}", variants=v) for v in (["fast"], ["maddpg", "fast"])]
+for h in hp:
+    h.update(policy_kwargs="dict(net_arch=[32, 32])", batch_size=16)
+runs = [RunConfig(seed=s, folder=f"{{root}}/{{tag}}/run_{{s}}", hyperparams=h) for s, h in zip((0, 1), hp)]
+config = ExperimentConfig("{env}", runs, n_timesteps=steps)
+Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0).run(resume=len(sys.argv) > 4)
+""".format(env=COMM)
+
+
+def run_pack(tmp_path, tag, steps, resume=False, kill_at_checkpoint=None):
+    script = tmp_path / "pack.py"
+    script.write_text(PACK_SCRIPT)
+    args = [sys.executable, str(script), str(tmp_path), tag, str(steps)] + (["resume"] if resume else [])
+    if kill_at_checkpoint is None:
+        subprocess.run(args, check=True, timeout=300)
+        return
+    process = subprocess.Popen(args)
+    latest = tmp_path / tag / "checkpoint" / "LATEST"
+    deadline = time.time() + 240
+    while time.time() < deadline and process.poll() is None:
+        if latest.exists() and latest.read_text() == f"step_{kill_at_checkpoint}":
+            break
+        time.sleep(0.05)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+
+
+def test_a_run_killed_and_resumed_gives_the_same_evaluations(tmp_path):
+    run_pack(tmp_path, "whole", 1200)
+    run_pack(tmp_path, "cut", 1200, kill_at_checkpoint=500)
+    assert not (tmp_path / "cut" / "run_0" / "run.json").exists()
+    run_pack(tmp_path, "cut", 1200, resume=True)
+    for run in ("run_0", "run_1"):
+        whole, cut = np.load(tmp_path / "whole" / run / "evaluations.npz"), np.load(tmp_path / "cut" / run / "evaluations.npz")
+        assert sorted(whole.files) == sorted(cut.files) and "final_successes" in whole.files
+        assert len(whole["timesteps"]) == 60
+        for name in whole.files:
+            assert np.array_equal(whole[name], cut[name]), name
+        assert json.loads((tmp_path / "cut" / run / "run.json").read_text())["complete"]
+    assert not (tmp_path / "cut" / "checkpoint").exists()  # deleted when the experiment ends
+
+
+def small_config(tmp_path, steps=200, seed=0):
+    hp = load_hyperparams(COMM, variants=["maddpg", "fast"])
+    hp.update(policy_kwargs="dict(net_arch=[16])", batch_size=8)
+    return ExperimentConfig(COMM, [RunConfig(seed=seed, folder=str(tmp_path / "run"), hyperparams=hp)], n_timesteps=steps)
+
+
+def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
+    folder = str(tmp_path / "exp")
+    with pytest.raises(ExperimentError, match="experiment.json does not exist"):
+        Experiment(small_config(tmp_path), folder).run(resume=True)
+    # killed before its first checkpoint: no silent fresh start
+    os.makedirs(folder)
+    Experiment(small_config(tmp_path), folder)._write_experiment_file(done=False)
+    with pytest.raises(ExperimentError, match="LATEST does not exist"):
+        Experiment(small_config(tmp_path), folder).run(resume=True)
+    with pytest.raises(ExperimentError, match="already holds an experiment"):
+        Experiment(small_config(tmp_path), folder).run()
+
+    folder = str(tmp_path / "exp2")
+    Experiment(small_config(tmp_path), folder, checkpoint_freq=50, keep_checkpoint=True, verbose=0).run()
+    os.remove(os.path.join(folder, "experiment.json"))
+    Experiment(small_config(tmp_path), folder)._write_experiment_file(done=False)  # as if stopped after a checkpoint
+    with pytest.raises(ExperimentError, match=r"differ from those in .*experiment.json in \['n_timesteps'\]"):
+        Experiment(small_config(tmp_path, steps=400), folder).run(resume=True)
+    with pytest.raises(ExperimentError, match="runs"):
+        Experiment(small_config(tmp_path, seed=1), folder).run(resume=True)
+    checkpoint = os.path.join(folder, "checkpoint", "step_150")
+    state = os.path.join(checkpoint, "state.pkl")
+    with open(state, "rb") as file:
+        data = pickle.load(file)
+    with open(state, "wb") as file:
+        file.write(b"garbage")
+    with pytest.raises(ExperimentError, match="state.pkl is missing or damaged"):
+        Experiment(small_config(tmp_path), folder).run(resume=True)
+    with open(state, "wb") as file:
+        pickle.dump(data, file)
+    with open(os.path.join(checkpoint, "model.zip"), "wb") as file:
+        file.write(b"PK")
+    with pytest.raises(ExperimentError, match="model.zip is missing or damaged"):
+        Experiment(small_config(tmp_path), folder).run(resume=True)
+    monkeypatch.setattr(sb3_macb, "__version__", "9.9.9")
+    with pytest.raises(ExperimentError, match="written by sb3_macb"):
+        Experiment(small_config(tmp_path), folder).run(resume=True)
+
+
+def test_resume_from_the_folder_alone_and_a_finished_experiment(tmp_path):
+    folder = str(tmp_path / "exp")
+    Experiment(small_config(tmp_path), folder, verbose=0).run()
+    assert Experiment(small_config(tmp_path), folder).status() == "done"
+    experiment = load_experiment(folder, verbose=0)
+    assert experiment.config.comparable() == small_config(tmp_path).comparable()
+    assert experiment.run(resume=True) == [str(tmp_path / "run")]  # nothing left to do
+
+
+def test_packs_refuse_runs_that_differ_in_more_than_exploration_and_noise(tmp_path):
+    a = load_hyperparams(COMM, variants=["fast"])
+    b = load_hyperparams(COMM, variants=["maddpg"])  # 400-300 networks
+    runs = [RunConfig(0, str(tmp_path / "a"), hyperparams=a), RunConfig(1, str(tmp_path / "b"), hyperparams=b)]
+    with pytest.raises(ExperimentError, match="differs in \\['policy_kwargs'\\]"):
+        ExperimentConfig(COMM, runs, n_timesteps=100)
+
+
+SAVE_LOOP = """
+import sys
+from sb3_macb import MADDPG
+from sb3_macb.envs.vec_tasks import make_task_vec_env
+model = MADDPG("MlpPolicy", make_task_vec_env("{env}", 1), policy_kwargs=dict(net_arch=[256, 256]), seed=0)
+print("ready", flush=True)
+while True:
+    model.save(sys.argv[1])
+    model.save_replay_buffer(sys.argv[2])
+""".format(env=COMM)
+
+
+def test_a_save_killed_at_any_moment_leaves_the_previous_file(tmp_path):
+    script = tmp_path / "loop.py"
+    script.write_text(SAVE_LOOP)
+    model_path, buffer_path = tmp_path / "model.zip", tmp_path / "buffer.pkl"
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        process = subprocess.Popen([sys.executable, str(script), str(model_path), str(buffer_path)], stdout=subprocess.PIPE)
+        assert process.stdout.readline().strip() == b"ready"
+        while not buffer_path.exists():
+            time.sleep(0.01)
+        time.sleep(float(rng.uniform(0.0, 0.5)))
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+        with zipfile.ZipFile(model_path) as archive:
+            assert archive.testzip() is None
+        MADDPG.load(model_path)
+    leftovers = [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
+    assert len(leftovers) <= 8  # a killed write leaves its temporary file, never a damaged target
+
+
+@pytest.mark.parametrize(
+    "env_id, kwargs",
+    [(COMM, {}), (COMM, {"reward": "distance"}), (NAV, {}), (NAV, {"terminate_on_success": True, "success_radius": 0.6})],
+)
+def test_the_vectorized_task_env_steps_exactly_as_the_mpe2_based_one(env_id, kwargs):
+    reference = make_vec_env(env_id, n_envs=3, env_kwargs=kwargs)
+    vectorized = make_task_vec_env(env_id, 3, kwargs)
+    reference.seed(7)
+    vectorized.seed(7)
+    assert np.array_equal(reference.reset(), vectorized.reset())
+    rng = np.random.default_rng(0)
+    dones_seen = 0
+    for _ in range(60):
+        actions = rng.uniform(-1, 1, (3, reference.action_space.shape[0])).astype(np.float32)
+        (o1, r1, d1, i1), (o2, r2, d2, i2) = reference.step(actions), vectorized.step(actions)
+        assert np.array_equal(o1, o2) and np.array_equal(r1, r2) and np.array_equal(d1, d2)
+        dones_seen += int(d1.sum())
+        for a, b in zip(i1, i2):
+            assert np.array_equal(a["agent_rewards"], b["agent_rewards"]) and a.get("is_success") == b.get("is_success")
+            first_a, first_b = next(iter(a["agent_infos"].values())), next(iter(b["agent_infos"].values()))
+            assert {k: first_a[k] for k in first_b} == first_b
+            if d1.any() and "terminal_observation" in a:
+                assert np.array_equal(a["terminal_observation"], b["terminal_observation"])
+    assert dones_seen >= 3
+    with pytest.raises(ValueError, match="NaN"):
+        vectorized.step(np.full((3, reference.action_space.shape[0]), np.nan, dtype=np.float32))
+
+
+def test_hyperparameter_strings_are_parsed_without_running_code(tmp_path):
+    import torch.nn as nn
+
+    assert safe_eval("dict(net_arch=[400, 300], activation_fn=nn.Tanh)", "x") == {"net_arch": [400, 300], "activation_fn": nn.Tanh}
+    assert safe_eval("{'a': (1, -2.5), 'b': None}", "x") == {"a": (1, -2.5), "b": None}
+    marker = tmp_path / "pwned"
+    for text in (f"__import__('os').system('touch {marker}')", f"dict(a=open('{marker}', 'w'))", "().__class__"):
+        with pytest.raises(ExperimentError, match="hyperparameter 'policy_kwargs'.*not allowed"):
+            safe_eval(text, "hyperparameter 'policy_kwargs'")
+    assert not marker.exists()
+    with pytest.raises(ExperimentError, match="cannot parse"):
+        safe_eval("dict(", "x")

@@ -1,0 +1,156 @@
+"""Packs: K runs in one model, each the same experiment as a solo run with its seed."""
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.noise import NormalActionNoise
+
+from sb3_macb import MACB, MADDPG
+from sb3_macb.callbacks import MultiAgentEvalCallback, make_eval_vec_env
+from sb3_macb.common.block_adam import BlockAdam
+from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+COMM = "sb3_macb/CommunicativeNavigation-v0"
+FIELDS = ("timesteps", "results", "successes", "final_successes", "episodes", "num_codes", "count1_fraction")
+
+
+def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None):
+    """A pack (or a solo run, with one seed) on Communicative Navigation, evaluated every episode."""
+    n = len(seeds)
+    noises = [NormalActionNoise(np.zeros(5), s * np.ones(5)) for s in (sigmas or [0.1] * n)]
+    model = MADDPG(
+        "MlpPolicy",
+        make_task_vec_env(COMM, n),
+        n_runs=n,
+        run_seeds=seeds,
+        exploration=explorations,
+        action_noise=noises,
+        batch_size=16,
+        learning_starts=40 * n,
+        policy_kwargs=dict(net_arch=list(net_arch)),
+    )
+    callback = MultiAgentEvalCallback(make_eval_vec_env(COMM, 4, seeds), n_eval_episodes=4, eval_freq=20, verbose=0, warn=False)
+    model.learn(steps * n, callback=callback)
+    return model, callback
+
+
+def settings():
+    return [MACB(0.8, 64), None, MACB(0.8, 512, scope="local"), MACB(0.8, counts=False)]
+
+
+@pytest.mark.parametrize("net_arch", [(32, 32), (128, 96)], ids=["batched-small-layers", "per-group-large-layers"])
+def test_every_run_of_a_pack_is_bit_identical_to_its_solo_run(net_arch):
+    seeds, sigmas = [3, 4, 5, 6], [0.1, 0.2, 0.1, 0.3]
+    steps = 300 if net_arch == (32, 32) else 120
+    pack, pack_cb = train(seeds, settings(), steps, net_arch, sigmas)
+    for k, (seed, exploration) in enumerate(zip(seeds, settings())):
+        solo, solo_cb = train([seed], [exploration], steps, net_arch, [sigmas[k]])
+        for name in FIELDS:
+            assert np.array_equal(np.asarray(solo_cb.records[0][name]), np.asarray(pack_cb.records[k][name])), (k, name)
+        run = pack.get_run(k)
+        for a, b in zip(run.policy.state_dict().values(), solo.policy.state_dict().values()):
+            assert th.equal(a, b), k
+        for name in ("actor", "critic"):
+            ours, theirs = getattr(run, name).optimizer.state_dict(), getattr(solo, name).optimizer.state_dict()
+            for i in theirs["state"]:
+                assert th.equal(ours["state"][i]["exp_avg_sq"], theirs["state"][i]["exp_avg_sq"])
+        assert run.num_timesteps == solo.num_timesteps and run._n_updates == solo._n_updates
+        if exploration is not None:
+            assert run.exploration.num_codes == solo.exploration.num_codes
+            assert run.exploration.total_count == solo.exploration.total_count == steps
+
+
+def test_a_run_handed_out_works_alone(tmp_path):
+    pack, _ = train([0, 1], [MACB(0.8, 64), None], 100)
+    run = pack.get_run(0)
+    obs = make_task_vec_env(COMM, 3).reset()
+    action, _ = run.predict(obs, deterministic=True)
+    assert action.shape == (3, 5)
+    packed_actions, _ = pack.predict(np.concatenate([obs, obs]), deterministic=True)  # run 0's rows, then run 1's
+    assert np.array_equal(packed_actions[:3], action) and not np.array_equal(packed_actions[3:], action)
+    run.save(tmp_path / "run0.zip")
+    loaded = MADDPG.load(tmp_path / "run0.zip")
+    assert np.array_equal(loaded.predict(obs, deterministic=True)[0], action)
+    assert loaded.exploration.num_codes == run.exploration.num_codes > 0
+    run.set_env(make_task_vec_env(COMM, 1))
+    run.learn(40, reset_num_timesteps=False)  # it trains on
+    assert run.num_timesteps == 140
+
+
+def test_a_pack_saves_and_loads(tmp_path):
+    pack, _ = train([0, 1, 2], [MACB(0.8, 64), None, MACB(0.4, counts=False)], 60)
+    pack.save(tmp_path / "pack")
+    loaded = MADDPG.load(tmp_path / "pack.zip")
+    assert loaded.n_runs == 3 and loaded.run_seeds == [0, 1, 2]
+    assert loaded.explorations[0].num_codes == pack.explorations[0].num_codes > 0
+    assert loaded.explorations[1] is None and loaded.explorations[2].total_count == 60
+    obs = make_task_vec_env(COMM, 6).reset()
+    assert np.array_equal(loaded.predict(obs, deterministic=True)[0], pack.predict(obs, deterministic=True)[0])
+    with pytest.raises(ValueError, match="3 runs"):
+        pack.predict(obs[:4], deterministic=True)
+
+
+def test_bad_pack_settings_are_named():
+    env = make_task_vec_env(COMM, 2)
+    with pytest.raises(ValueError, match="n_runs"):
+        MADDPG("MlpPolicy", env, n_runs=0)
+    with pytest.raises(ValueError, match="run_seeds"):
+        MADDPG("MlpPolicy", env, n_runs=2, run_seeds=[1])
+    with pytest.raises(ValueError, match="exploration"):
+        MADDPG("MlpPolicy", env, n_runs=2, exploration=[MACB()])
+    with pytest.raises(ValueError, match="action_noise"):
+        MADDPG("MlpPolicy", env, n_runs=2, action_noise=[NormalActionNoise(np.zeros(5), np.ones(5))])
+    with pytest.raises(ValueError, match="divisible"):
+        MADDPG("MlpPolicy", make_task_vec_env(COMM, 3), n_runs=2)
+    with pytest.raises(ValueError, match="counts"):
+        MACB(counts="no")
+    model = MADDPG("MlpPolicy", env, n_runs=2, seed=0, policy_kwargs=dict(net_arch=[8]))
+    assert model.run_seeds == [0, 1]
+    with pytest.raises(AttributeError, match="explorations"):
+        model.exploration
+    with pytest.raises(IndexError):
+        model.get_run(2)
+
+
+def test_constant_bonus_control_adds_beta_and_counts_nothing():
+    model, callback = train([0], [MACB(0.5, 512, counts=False)], 80)
+    macb = model.exploration
+    assert macb.num_codes == 0 and macb.total_count == 80 and not macb.hashes
+    batch = model.replay_buffer.sample_runs(32, [np.random.default_rng(0)])
+    stored = model.replay_buffer.agent_rewards[: model.replay_buffer.pos, 0]
+    assert set(np.unique(batch.rewards.numpy() - 0.5)) <= set(np.unique(stored))  # reward + beta exactly
+    assert repr(macb).endswith("counts=False)")
+    assert MACB(**macb.config).counts is False
+
+
+def test_final_step_success_is_recorded_beside_any_step_success(tmp_path):
+    easy = dict(success_radius=100.0)
+    env = make_task_vec_env(COMM, 1, easy)
+    model = MADDPG("MlpPolicy", env, learning_starts=1000, policy_kwargs=dict(net_arch=[8]), seed=0)
+    callback = MultiAgentEvalCallback(make_eval_vec_env(COMM, 3, [0], easy), n_eval_episodes=3, eval_freq=20,
+                                      log_path=str(tmp_path), verbose=0, warn=False)  # fmt: skip
+    model.learn(40, callback=callback)
+    data = np.load(tmp_path / "evaluations.npz")
+    assert data["final_successes"].shape == data["successes"].shape == (2, 3)
+    assert data["final_successes"].all() and data["episodes"].tolist() == [1, 2]
+
+
+def test_block_adam_updates_blocks_as_adam_updates_whole_tensors():
+    th.manual_seed(0)
+    whole = [th.nn.Parameter(th.randn(6, 5, 7)), th.nn.Parameter(th.randn(6, 5))]
+    blocks = [th.nn.Parameter(p.detach().clone()) for p in whole]
+    adam = th.optim.Adam(whole, lr=1e-2, fused=True)
+    block_adam = BlockAdam(blocks, blocks=[[(0, 2), (2, 4), (4, 6)]] * 2, lr=1e-2)
+    for _ in range(20):
+        grads = [th.randn_like(p) for p in whole]
+        for params, opt in ((whole, adam), (blocks, block_adam)):
+            for p, g in zip(params, grads):
+                p.grad = g.clone()
+            opt.step()
+    for a, b in zip(whole, blocks):
+        th.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
+        assert not th.equal(a, whole[0] * 0)
+    state = block_adam.state_dict()
+    again = BlockAdam([th.nn.Parameter(p.detach().clone()) for p in blocks], blocks=[[(0, 2), (2, 4), (4, 6)]] * 2, lr=1e-2)
+    again.load_state_dict(state)
+    assert float(again.state_dict()["state"][0]["step"]) == 20.0
