@@ -4,7 +4,8 @@ import sys
 
 USAGE = """usage: sb3-macb {train,sweep,plot} ...
 
-  train   rl_zoo3's train with MADDPG and the paper's tasks (sb3-macb train -h for rl_zoo3's options, plus --variant)
+  train   rl_zoo3's train with MADDPG and the paper's tasks (sb3-macb train -h for rl_zoo3's options, plus --variant);
+          with --checkpoint-freq N it checkpoints every N steps, and --resume RUN_FOLDER continues such a run
   sweep   run a grid of settings x seeds as trials of an Optuna study, shared by any number of workers
   plot    learning curves, collisions, the beta x k table and heatmap, the SimHash grouping figure
 """
@@ -17,9 +18,14 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     if command == "train":
+        from sb3_macb.zoo.experiment import ExperimentError
         from sb3_macb.zoo.train import train
 
-        train(rest)
+        try:
+            train(rest)
+        except ExperimentError as exc:  # a user's mistake: one line, no traceback
+            print(f"sb3-macb train: error: {exc}", file=sys.stderr)
+            return 2
     elif command == "sweep":
         from sb3_macb.zoo.sweep import main as sweep
 

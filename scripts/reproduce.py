@@ -45,9 +45,25 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     return packs
 
 
+def _exit_with_parent() -> None:
+    """End this worker when the script that started it is gone (killed workers would otherwise run on)."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], command: str) -> str:
     import torch as th
 
+    _exit_with_parent()
     from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, RunConfig, load_hyperparams
 
     th.set_num_threads(1)

@@ -211,3 +211,20 @@ def test_hyperparameter_strings_are_parsed_without_running_code(tmp_path):
     assert not marker.exists()
     with pytest.raises(ExperimentError, match="cannot parse"):
         safe_eval("dict(", "x")
+
+
+def test_train_command_checkpoints_and_resumes(tmp_path, capsys):
+    from sb3_macb.cli import main
+
+    common = ["--env", COMM, "-n", "300", "--seed", "2", "-f", str(tmp_path), "-c", load_hyperparams.__globals__["DEFAULT_CONFIG"],
+              "--variant", "maddpg,fast", "-params", "batch_size:16", "policy_kwargs:dict(net_arch=[16])"]  # fmt: skip
+    assert main(["train", *common, "--checkpoint-freq", "100", "--verbose", "0"]) == 0
+    folder = tmp_path / "maddpg" / "CommunicativeNavigation-v0_1"
+    assert json.loads((folder / "run.json").read_text())["complete"]
+    assert len(np.load(folder / "evaluations.npz")["timesteps"]) == 15
+    assert main(["train", *common, f"--resume={folder}"]) == 0  # finished: nothing to do
+    changed = [a if a != "300" else "600" for a in common]
+    assert main(["train", *changed, "--resume", str(folder)]) == 2
+    assert "differ from those in" in capsys.readouterr().err
+    assert main(["train", *common, "-params", "batch_size:__import__('os')", "--checkpoint-freq", "100"]) == 2
+    assert "not allowed" in capsys.readouterr().err

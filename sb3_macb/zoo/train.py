@@ -165,6 +165,77 @@ def _with_defaults(argv: list[str], defaults: dict[str, list[str]]) -> list[str]
     return argv + extra
 
 
+def _checkpointed_train(argv: list[str]) -> str:
+    """
+    ``sb3-macb train`` with ``--checkpoint-freq N`` or ``--resume RUN_FOLDER``: one run through
+    :mod:`sb3_macb.zoo.experiment` (checkpoints every N steps in the run folder; resume continues the same command
+    from its latest checkpoint, with evaluations identical to an uninterrupted run's).
+    """
+    import shlex
+
+    import torch as th
+
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams, safe_eval
+
+    parser = argparse.ArgumentParser(prog="sb3-macb train", description="Checkpointed training (one run).")
+    parser.add_argument("--env", required=True)
+    parser.add_argument("--algo", default="maddpg", choices=["maddpg"])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("-n", "--n-timesteps", type=int, default=-1)
+    parser.add_argument("-f", "--log-folder", default="logs")
+    parser.add_argument("-conf", "--conf-file", "-c", "--conf", dest="conf_file", default=None)
+    parser.add_argument("--variant", default="")
+    parser.add_argument("-params", "--hyperparams", nargs="+", default=[], metavar="KEY:VALUE")
+    parser.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE")
+    parser.add_argument("--eval-freq", type=int, default=20)
+    parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument("--num-threads", type=int, default=1)
+    parser.add_argument("--checkpoint-freq", type=int, default=None)
+    parser.add_argument("--resume", metavar="RUN_FOLDER", default=None)
+    parser.add_argument("--verbose", type=int, default=1)
+    parser.add_argument("-P", "--progress", action="store_true")
+    parser.add_argument("--no-progress", action="store_true")
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        parser.error(f"options not supported with --checkpoint-freq/--resume: {unknown}")
+
+    def pairs(items: list[str], what: str) -> dict[str, Any]:
+        result = {}
+        for item in items:
+            key, sep, value = item.partition(":")
+            if not sep:
+                parser.error(f"{what} takes KEY:VALUE pairs, got {item!r}")
+            result[key] = safe_eval(value, f"{what} {key}")
+        return result
+
+    variants = [v for v in args.variant.split(",") if v]
+    hyperparams = load_hyperparams(args.env, args.conf_file, variants, pairs(args.hyperparams, "-params"))
+    n_timesteps = args.n_timesteps if args.n_timesteps > 0 else int(hyperparams.get("n_timesteps", 800_000))
+    if args.resume:
+        folder = args.resume
+    else:
+        base = os.path.join(args.log_folder, args.algo)
+        name = args.env.split("/")[-1]
+        index = 1
+        while os.path.exists(os.path.join(base, f"{name}_{index}")):
+            index += 1
+        folder = os.path.join(base, f"{name}_{index}")
+    config = ExperimentConfig(
+        args.env,
+        [RunConfig(seed=args.seed, folder=folder, variants=variants, hyperparams=hyperparams)],
+        n_timesteps=n_timesteps,
+        eval_freq=args.eval_freq,
+        eval_episodes=args.eval_episodes,
+        env_kwargs=pairs(args.env_kwargs, "--env-kwargs"),
+        command="sb3-macb train " + " ".join(shlex.quote(a) for a in argv if a != "--resume" and a != args.resume),
+    )
+    th.set_num_threads(args.num_threads)
+    if args.verbose:
+        print(f"{'Resuming' if args.resume else 'Training'} {args.env} (seed {args.seed}, {n_timesteps} steps) in {folder}")
+    Experiment(config, folder, checkpoint_freq=args.checkpoint_freq, verbose=args.verbose).run(resume=bool(args.resume))
+    return folder
+
+
 def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None) -> str | None:
     """
     Run ``sb3-macb train`` with these arguments (rl_zoo3's train arguments plus ``--variant``).
@@ -176,6 +247,10 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     import rl_zoo3.train as zoo_train
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    if any(a.split("=")[0] in ("--checkpoint-freq", "--resume") for a in argv):
+        if overrides:
+            argv = [*argv, "-params", *(f"{k}:{v!r}" for k, v in overrides.items())]
+        return _checkpointed_train([a for part in argv for a in (part.split("=", 1) if part.startswith("--") and "=" in part else [part])])
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--variant", default="")
     parser.add_argument("--no-progress", action="store_true")
