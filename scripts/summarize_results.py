@@ -5,8 +5,10 @@ spread over seeds), final success rate, wall time per run, and the commands that
     python scripts/summarize_results.py results/CommunicativeNavigation-sparse
 
 Episodes to threshold: the first evaluation at which the success rate averaged over the last ``--window``
-evaluations (10 evaluations = 100 evaluation episodes by default) reaches the threshold; a run that never reaches it
-counts as its whole budget (marked with ">"). ``--max-episodes`` cuts every run at that many training episodes, to
+evaluations (10 evaluations = 100 evaluation episodes by default) reaches the threshold. A run that never reaches
+it is censored at its last episode (marked ">"); the table says how many seeds reached it and gives the
+Kaplan-Meier median (none while fewer than half reached it), never a mean over censored values.
+``--metric final_successes`` uses the final-step success instead of the any-step success (the paper's). ``--max-episodes`` cuts every run at that many training episodes, to
 compare runs of different lengths at one budget (a run's first N episodes are the run it would have been with that
 budget: the same seed gives the same run, and nothing in the settings depends on the total budget).
 """
@@ -28,6 +30,22 @@ def episodes_to(successes: np.ndarray, episodes: np.ndarray, threshold: float, w
     return float(episodes[-1]), False
 
 
+def km_median(times: list[float], reached: list[bool]) -> float | None:
+    """
+    Kaplan-Meier median of the episodes to a threshold: runs that did not reach it are censored at their last
+    episode. None when the estimated survival never falls to one half (fewer than half of the runs reached it).
+    """
+    order = np.argsort(times, kind="stable")
+    at_risk, survival = len(times), 1.0
+    for i in order:
+        if reached[i]:
+            survival *= 1.0 - 1.0 / at_risk
+            if survival <= 0.5:
+                return float(times[i])
+        at_risk -= 1
+    return None
+
+
 def load_run(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray]:
     """An ``evaluations.npz`` as a dict of arrays, cut at ``max_episodes`` training episodes if given."""
     with np.load(path) as data:
@@ -39,37 +57,53 @@ def load_run(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray
 
 
 def summarize(
-    task_folder: str, threshold: float, window: int, final: int, max_episodes: int | None = None, collisions: bool = False
+    task_folder: str,
+    threshold: float,
+    window: int,
+    final: int,
+    max_episodes: int | None = None,
+    collisions: bool = False,
+    metric: str = "successes",
 ) -> str:
+    name = {"successes": "any-step success", "final_successes": "final-step success"}.get(metric, metric)
     lines = [
-        f"| variant | seeds | episodes to {threshold:.0%} success (mean +/- std) | per seed | final success rate "
-        f"(last {final} evals, mean +/- std) | wall time per run |" + (" training collisions (mean +/- std) |" if collisions else ""),
-        "|---|---|---|---|---|---|" + ("---|" if collisions else ""),
+        f"| variant | seeds | reached {threshold:.0%} {name} | Kaplan-Meier median episodes | episodes per seed | final "
+        f"{name} (last {final} evals), mean +/- std | per seed | episodes run | wall time per run |"
+        + (" training collisions (mean +/- std) |" if collisions else ""),
+        "|---|---|---|---|---|---|---|---|---|" + ("---|" if collisions else ""),
     ]
     commands = []
     for variant in sorted(os.listdir(task_folder)):
         runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", "evaluations.npz")))
         if not runs:
             continue
-        reached, per_seed, finals, walls, crashes = [], [], [], [], []
+        reached, hit, per_seed, finals, walls, crashes, lengths = [], [], [], [], [], [], []
         for path in runs:
             data = load_run(path, max_episodes)
-            value, ok = episodes_to(data["successes"], data["episodes"], threshold, window)
+            if metric not in data:
+                continue
+            value, ok = episodes_to(data[metric], data["episodes"], threshold, window)
             reached.append(value)
+            hit.append(ok)
             per_seed.append(f"{value:.0f}" if ok else f">{value:.0f}")
-            finals.append(float(data["successes"][-final:].mean()))
+            finals.append(float(data[metric][-final:].mean()))
+            lengths.append(int(data["episodes"][-1]))
             if collisions:
                 crashes.append(float(data["training_collisions"][-1]))
             meta_path = os.path.join(os.path.dirname(path), "run.json")
-            if os.path.isfile(meta_path):
+            if os.path.isfile(meta_path) and metric in load_run(path):
                 with open(meta_path) as file:
                     meta = json.load(file)
                 walls.append(meta["wall_time_s"])
                 commands.append(meta["command"])
+        if not reached:
+            continue
         wall = f"{np.mean(walls) / 60:.1f} min" if walls else "-"
+        median = km_median(reached, hit)
         lines.append(
-            f"| {variant} | {len(runs)} | {np.mean(reached):.0f} +/- {np.std(reached):.0f} | {', '.join(per_seed)} | "
-            f"{np.mean(finals):.2f} +/- {np.std(finals):.2f} | {wall} |"
+            f"| {variant} | {len(reached)} | {sum(hit)} of {len(hit)} | {'not reached' if median is None else f'{median:.0f}'} | "
+            f"{', '.join(per_seed)} | {np.mean(finals):.3f} +/- {np.std(finals):.3f} | {', '.join(f'{f:.3f}' for f in finals)} | "
+            f"{', '.join(map(str, lengths))} | {wall} |"
             + (f" {np.mean(crashes):.0f} +/- {np.std(crashes):.0f} |" if collisions else "")
         )
     text = "\n".join(lines)
@@ -86,10 +120,12 @@ def main() -> None:
     parser.add_argument("--final", type=int, default=50)
     parser.add_argument("--collisions", action="store_true", help="add the accumulated training collisions")
     parser.add_argument("--max-episodes", type=int, default=None, help="cut every run at this many training episodes")
+    parser.add_argument("--metric", default="successes", choices=["successes", "final_successes"],
+                        help="any-step success (the paper's) or final-step success")  # fmt: skip
     args = parser.parse_args()
     for folder in args.task_folders:
         print(f"### {os.path.basename(os.path.normpath(folder))}\n")
-        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes, args.collisions))
+        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes, args.collisions, args.metric))
         print()
 
 

@@ -15,6 +15,7 @@ average over ``--smooth`` evaluations.
 import argparse
 import csv
 import glob
+import json
 import os
 from typing import Any
 
@@ -71,15 +72,24 @@ def _x_axis(run: dict[str, np.ndarray]) -> np.ndarray:
     return run["episodes"] if "episodes" in run else run["timesteps"] / 20
 
 
-def plot_curves(groups: list[str], output: str, window: int = 50, confidence: float = 0.75) -> None:
-    """Success rate and mean evaluation return against training episodes, one line per run group."""
+def plot_curves(
+    groups: list[str], output: str, window: int = 50, confidence: float = 0.75, reference: str | None = None
+) -> None:
+    """
+    Success rate (any-step and, where recorded, final-step) and mean evaluation return against training episodes,
+    one line per run group; with ``reference`` (the JSON of ``scripts/reference_levels.py``) the scripted
+    listeners' levels as horizontal lines.
+    """
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for folder in groups:
-        runs = load_group(folder)
+    all_runs = {folder: load_group(folder) for folder in groups}
+    panels = [("successes", "any-step success rate"), ("results", "mean return")]
+    if all("final_successes" in r for runs in all_runs.values() for r in runs):
+        panels.insert(1, ("final_successes", "final-step success rate"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.5))
+    for folder, runs in all_runs.items():
         label = f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)"
         x = _x_axis(runs[0])
-        for ax, key in zip(axes, ("successes", "results")):
+        for ax, (key, _) in zip(axes, panels):
             if not all(key in r for r in runs):
                 continue
             curves = [smooth(r[key].mean(axis=1), window) for r in runs]
@@ -87,14 +97,25 @@ def plot_curves(groups: list[str], output: str, window: int = 50, confidence: fl
             xs = x[: len(mean)]
             ax.plot(xs, mean, label=label)
             ax.fill_between(xs, mean - band, mean + band, alpha=0.25)
-    axes[0].set(xlabel="training episodes", ylabel="success rate", ylim=(-0.02, 1.02), title="Evaluation success rate")
-    axes[1].set(xlabel="training episodes", ylabel="mean return", title="Evaluation return")
-    for ax in axes:
+    if reference:
+        with open(reference) as file:
+            levels = json.load(file)
+        styles = {"random_landmark": ":", "landmark_tour": "--", "oracle": "-."}
+        for ax, (key, _) in zip(axes, panels):
+            field = {"successes": "any_step", "final_successes": "final_step", "results": "mean_return"}[key]
+            for name, level in levels.items():
+                ax.axhline(level[field], color="gray", linestyle=styles.get(name, "-"), linewidth=1,
+                           label=f"{name.replace('_', ' ')} (scripted)")  # fmt: skip
+    for ax, (key, title) in zip(axes, panels):
+        ylabel = "mean return" if key == "results" else "success rate"
+        ax.set(xlabel="training episodes", ylabel=ylabel, title=f"Evaluation: {title}")
+        if key != "results":
+            ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="lower right", fontsize=8)
+    axes[0].legend(loc="upper left", fontsize=7)
     fig.suptitle(f"mean over seeds, {int(confidence * 100)}% confidence band, moving average of {window} evaluations")
     fig.tight_layout()
-    fig.savefig(output, dpi=120)
+    fig.savefig(output, dpi=110)
     plt.close(fig)
 
 
@@ -206,6 +227,7 @@ def main(argv: list[str] | None = None) -> None:
     curves.add_argument("--smooth", type=int, default=50, help="moving average window, in evaluations")
     curves.add_argument("--confidence", type=float, default=0.75)
     curves.add_argument("-o", "--output", default="curves.png")
+    curves.add_argument("--reference", default=None, help="scripted listeners' levels (scripts/reference_levels.py)")
     collisions = sub.add_parser("collisions", help="accumulated training collisions")
     collisions.add_argument("groups", nargs="+")
     collisions.add_argument("--confidence", type=float, default=0.75)
@@ -221,7 +243,7 @@ def main(argv: list[str] | None = None) -> None:
     simhash.add_argument("-o", "--output", default="simhash.png")
     args = parser.parse_args(argv)
     if args.what == "curves":
-        plot_curves(args.groups, args.output, args.smooth, args.confidence)
+        plot_curves(args.groups, args.output, args.smooth, args.confidence, args.reference)
     elif args.what == "collisions":
         plot_collisions(args.groups, args.output, args.confidence)
     elif args.what == "table":
