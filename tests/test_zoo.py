@@ -234,3 +234,33 @@ def test_plots_from_a_small_run(tmp_path):
         assert path.stat().st_size > 10_000 and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     table = (tmp_path / "table.md").read_text()
     assert "| 32 | 0.60, 85% (n=2) | 1.00, 100% (n=1) |" in table
+
+
+def test_sweep_pack_trains_queued_points_together_as_they_would_run_alone(tmp_path):
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
+    from sb3_macb.zoo.sweep import main as sweep
+
+    config = tmp_path / "grid.yml"
+    config.write_text(
+        "env: sb3_macb/CommunicativeNavigation-v0\nn_timesteps: 120\nvariant: fast\n"
+        "hyperparams: {batch_size: 16, policy_kwargs: 'dict(net_arch=[16])'}\n"
+        "grid: {exploration.k: [16, 512], exploration.beta: [0.5]}\nseeds: [0, 1]\n"
+    )
+    sweep(["--config", str(config), "--study-name", "p", "-f", str(tmp_path / "sw"), "--pack", "3"])
+    rows = (tmp_path / "sw" / "p" / "results.csv").read_text().strip().splitlines()[1:]
+    assert len(rows) == 4
+    packs = sorted(p.name for p in (tmp_path / "sw" / "p").iterdir() if p.name.startswith("pack_"))
+    assert packs == ["pack_0", "pack_3"]  # three points together, then the last one
+    row = next(r.split(",") for r in rows if r.split(",")[0] == "1")
+    params = dict(zip(["exploration.beta", "exploration.k", "seed"], row[1:4]))
+    hp = load_hyperparams("sb3_macb/CommunicativeNavigation-v0", variants=["fast"],
+                          overrides={"batch_size": 16, "policy_kwargs": "dict(net_arch=[16])",
+                                     "exploration.k": int(params["exploration.k"]), "exploration.beta": float(params["exploration.beta"])})  # fmt: skip
+    alone = ExperimentConfig("sb3_macb/CommunicativeNavigation-v0", [RunConfig(int(params["seed"]), str(tmp_path / "alone"), hyperparams=hp)], 120)
+    Experiment(alone, str(tmp_path / "alone_exp"), verbose=0).run()
+    a, b = np.load(tmp_path / "alone" / "evaluations.npz"), np.load(tmp_path / "sw" / "p" / "trial_1" / "evaluations.npz")
+    assert all(np.array_equal(a[name], b[name]) for name in a.files)
+    bad = tmp_path / "bad.yml"
+    bad.write_text(config.read_text().replace("exploration.beta: [0.5]", "learning_rate: [0.001, 0.01]"))
+    with pytest.raises(ValueError, match="only MACB's settings"):
+        sweep(["--config", str(bad), "--study-name", "q", "-f", str(tmp_path / "sw2"), "--pack", "2"])

@@ -49,7 +49,9 @@ CHECKPOINT_DIR = "checkpoint"
 # Hyperparameters that may differ between the runs of one pack; everything else must be equal
 PACKABLE = ("exploration", "noise_std")
 # rl_zoo3 keys the experiment runner does not support (they change the env or the training loop)
-UNSUPPORTED = ("normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback", "normalize_kwargs", "n_envs")
+UNSUPPORTED = (
+    "normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback", "normalize_kwargs", "n_envs", "monitor_kwargs",
+)  # fmt: skip
 
 
 class ExperimentError(ValueError):
@@ -221,6 +223,10 @@ class ExperimentConfig:
         self.runs = [r if isinstance(r, RunConfig) else RunConfig(**r) for r in self.runs]
         if not self.runs:
             raise ExperimentError("An experiment needs at least one run")
+        for run in self.runs:  # rl_zoo3 lets the YAML entry carry the env's kwargs; the command line's win
+            yaml_env_kwargs = run.hyperparams.pop("env_kwargs", None)
+            if yaml_env_kwargs:
+                self.env_kwargs = {**yaml_env_kwargs, **self.env_kwargs}
         if self.n_timesteps < 1 or self.eval_freq < 0 or self.eval_episodes < 1:
             raise ExperimentError("n_timesteps and eval_episodes must be >= 1 and eval_freq >= 0")
         common = [_pack_key(r.hyperparams) for r in self.runs]

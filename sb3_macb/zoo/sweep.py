@@ -9,7 +9,10 @@ grid:
   runs once;
 - workers send heartbeats; the trial of a worker that dies is failed by the next worker that looks at the study
   and put back in the queue (Optuna's ``RetryHeartbeatStaleTrialCallback``), where another worker picks it up;
-- a worker leaves when nothing is waiting or running.
+- a worker leaves when nothing is waiting or running;
+- with ``--pack K`` a worker claims up to K waiting points at once and trains them together in one process (one
+  set of stacked tensors; each point is the run it would be alone), which pays the per-step fixed cost once. Only
+  MACB's settings (``exploration.*``) and ``noise_std`` may vary in such a grid (network shapes must be equal).
 
 Storage: a SQLite file by default (``sqlite:///LOGDIR/sweeps.db``); a PostgreSQL URL spreads the workers over
 machines. Each trial records its success rate (mean over the last ``final_evals`` evaluations), the count-1
@@ -180,6 +183,75 @@ def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -
     return success_rate, count1, save_path
 
 
+PACKABLE_PREFIXES = ("exploration.", "exploration", "noise_std")
+
+
+def _check_packable(config: dict[str, Any]) -> None:
+    bad = [name for name in config["grid"] if not name.startswith(PACKABLE_PREFIXES)]
+    if bad:
+        raise ValueError(
+            f"--pack trains several grid points in one process, which needs equal network shapes and training settings: "
+            f"only MACB's settings (exploration.*) and noise_std may vary in the grid, not {bad}. Run without --pack."
+        )
+
+
+def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], log_folder: str) -> list[tuple[float, float, str]]:
+    """
+    Train several grid points as one pack (:mod:`sb3_macb.zoo.experiment`); each is the run it would be alone.
+
+    :param points: (trial number, parameters with ``seed``) of each point.
+    :param log_folder: The sweep's folder; run ``N`` goes to ``trial_N``, the pack's checkpoints to ``pack_N``.
+    :return: (success rate, count-1 fraction, run folder) of each point.
+    """
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
+
+    variants = [v for v in str(config.get("variant") or "").split(",") if v]
+    runs = []
+    for number, params in points:
+        overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
+        hyperparams = load_hyperparams(config["env"], config.get("conf_file"), variants, overrides)
+        runs.append(RunConfig(seed=int(params["seed"]), folder=os.path.join(log_folder, f"trial_{number}"),
+                              variants=variants, hyperparams=hyperparams))  # fmt: skip
+    n_timesteps = int(config.get("n_timesteps") or runs[0].hyperparams.get("n_timesteps", 800_000))
+    experiment_config = ExperimentConfig(
+        config["env"], runs, n_timesteps=n_timesteps, eval_freq=int(config.get("eval_freq", 20)),
+        eval_episodes=int(config.get("eval_episodes", 10)), env_kwargs=dict(config.get("env_kwargs") or {}),
+    )  # fmt: skip
+    Experiment(experiment_config, os.path.join(log_folder, f"pack_{points[0][0]}"), verbose=0).run()
+    n_final = int(config.get("final_evals", 10))
+    results = []
+    for run in runs:
+        data = np.load(os.path.join(run.folder, "evaluations.npz"))
+        success_rate = float(np.mean(data["successes"][-n_final:])) if "successes" in data.files else 0.0
+        results.append((success_rate, float(data["count1_fraction"][-1]), run.folder))
+    return results
+
+
+class _Heartbeats:
+    """Heartbeats for trials claimed with ``study.ask()`` (``study.optimize`` sends its own)."""
+
+    def __init__(self, storage: optuna.storages.RDBStorage, trial_ids: list[int], interval: int):
+        import threading
+
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, args=(storage, trial_ids, interval), daemon=True)
+
+    def _beat(self, storage: optuna.storages.RDBStorage, trial_ids: list[int], interval: int) -> None:
+        while True:
+            for trial_id in trial_ids:
+                storage.record_heartbeat(trial_id)
+            if self._stop.wait(interval):
+                return
+
+    def __enter__(self) -> "_Heartbeats":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
 def write_results(study: optuna.Study, path: str) -> None:
     """The finished grid trials as CSV: parameters, success rate, count-1 fraction, run folder."""
     trials = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)) if t.user_attrs.get("grid_point")]
@@ -195,7 +267,9 @@ def write_results(study: optuna.Study, path: str) -> None:
             )  # fmt: skip
 
 
-def work(config_path: str, storage_url: str, study_name: str, log_folder: str, heartbeat: int = 30, poll: float = 5.0) -> None:
+def work(
+    config_path: str, storage_url: str, study_name: str, log_folder: str, heartbeat: int = 30, poll: float = 5.0, pack: int = 0
+) -> None:
     """
     Join the sweep as a worker and run grid points until none is waiting or running.
 
@@ -205,8 +279,12 @@ def work(config_path: str, storage_url: str, study_name: str, log_folder: str, h
     :param log_folder: Where the trials' run folders go (``LOG/NAME/trial_N``).
     :param heartbeat: Heartbeat interval in seconds; a trial silent for 3 intervals is retried elsewhere.
     :param poll: Seconds between looks at the study while other workers' trials run.
+    :param pack: Claim up to this many waiting grid points at once and train them together in one process
+        (:mod:`sb3_macb.zoo.experiment`); 0: one point at a time through rl_zoo3's train.
     """
     config = load_config(config_path)
+    if pack > 0:
+        _check_packable(config)
     points = grid_points(config)
     storage = make_storage(storage_url, heartbeat)
     study = _with_retries(
@@ -232,13 +310,47 @@ def work(config_path: str, storage_url: str, study_name: str, log_folder: str, h
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             optuna.storages.fail_stale_trials(study)
         trials = study.get_trials(deepcopy=False, states=(TrialState.WAITING, TrialState.RUNNING))
-        if any(t.state == TrialState.WAITING for t in trials):
+        waiting = sum(t.state == TrialState.WAITING for t in trials)
+        if waiting and pack > 0:
+            _work_on_pack(study, storage, config, min(pack, waiting), os.path.join(log_folder, study_name), heartbeat)
+        elif waiting:
             study.optimize(objective, n_trials=1)
         elif trials:
             time.sleep(poll)
         else:
             break
     write_results(study, os.path.join(log_folder, study_name, "results.csv"))
+
+
+def _work_on_pack(
+    study: optuna.Study, storage: optuna.storages.RDBStorage, config: dict[str, Any], size: int, folder: str, heartbeat: int
+) -> None:
+    """Claim up to ``size`` waiting grid points, train them as one pack and report each."""
+    claimed: list[tuple[optuna.Trial, dict[str, Any]]] = []
+    for _ in range(size):
+        with warnings.catch_warnings():  # (heartbeats are sent by _Heartbeats below, not by study.optimize)
+            warnings.simplefilter("ignore", UserWarning)
+            trial = study.ask()  # takes a waiting (queued) trial when there is one
+        if not trial.user_attrs.get("grid_point"):
+            study.tell(trial, state=TrialState.PRUNED)  # another worker took the last queued point
+            break
+        params = {name: trial.suggest_categorical(name, values) for name, values in config["grid"].items()}
+        params["seed"] = trial.suggest_categorical("seed", [int(s) for s in config["seeds"]])
+        claimed.append((trial, params))
+    if not claimed:
+        return
+    try:
+        with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat):
+            results = run_pack(config, [(t.number, p) for t, p in claimed], folder)
+    except Exception:
+        for trial, _ in claimed:
+            study.tell(trial, state=TrialState.FAIL)
+        raise
+    for (trial, _), (success_rate, count1, run_folder) in zip(claimed, results):
+        trial.set_user_attr("success_rate", success_rate)
+        trial.set_user_attr("count1_fraction", count1)
+        trial.set_user_attr("run_folder", run_folder)
+        study.tell(trial, success_rate)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -248,7 +360,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--study-name", required=True)
     parser.add_argument("-f", "--log-folder", default="logs/sweeps")
     parser.add_argument("--heartbeat", type=int, default=30, help="seconds between a worker's heartbeats")
+    parser.add_argument("--pack", type=int, default=0, metavar="K",
+                        help="claim up to K queued grid points at once and train them together in one process")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.pack < 0:
+        parser.error("--pack must be >= 0")
     os.makedirs(args.log_folder, exist_ok=True)
     storage = args.storage or f"sqlite:///{os.path.abspath(os.path.join(args.log_folder, 'sweeps.db'))}"
-    work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat)
+    work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack)
