@@ -52,9 +52,8 @@ def test_max_episodes_cuts_every_per_evaluation_array(tmp_path):
     assert len(data["episodes"]) == len(data["successes"]) == len(data["timesteps"]) == 6
     assert data["successes"].mean() == pytest.approx(0.1)
     table = summary.summarize(str(tmp_path), threshold=0.5, window=1, final=2, max_episodes=6)
-    assert "| v | 1 | 6 +/- 0 | >6 |" in table
-    assert "0.10 +/- 0.00" in table
-    assert "| v | 1 | 7 +/- 0 | 7 |" in summary.summarize(str(tmp_path), threshold=0.5, window=1, final=2)
+    assert "| v | 1 | 0 of 1 | not reached | >6 | 0.100 +/- 0.000 |" in table  # censored, never averaged
+    assert "| v | 1 | 1 of 1 | 7 | 7 |" in summary.summarize(str(tmp_path), threshold=0.5, window=1, final=2)
     with_collisions = summary.summarize(str(tmp_path), 0.5, 1, 2, max_episodes=6, collisions=True)
     assert with_collisions.splitlines()[2].endswith("| 18 +/- 0 |")  # accumulated at the cut: 3 per episode
 
@@ -91,3 +90,11 @@ def test_table1_sweep_configs_are_valid(name):
     for beta in config["grid"]["exploration.beta"]:
         for k in config["grid"]["exploration.k"]:
             MACB(beta=beta, k=k)  # every cell is a valid MACB
+
+
+def test_kaplan_meier_median_counts_censored_runs():
+    km = load_script("summarize_results").km_median
+    assert km([100, 200, 300], [True, True, True]) == 200
+    assert km([100, 400, 400], [True, False, False]) is None  # one of three reached it: no median
+    assert km([100, 150, 400, 400], [True, True, False, False]) == 150  # half reached it
+    assert km([50, 300, 400], [False, True, True]) == 300  # censored early: S(300) = 1 - 1/2

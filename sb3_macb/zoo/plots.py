@@ -163,9 +163,12 @@ def sweep_table(results_csv: str, row: str = "exploration.k", column: str = "exp
     return rows, cols, success, count1, seeds
 
 
-def plot_table(results_csv: str, output: str, row: str = "exploration.k", column: str = "exploration.beta") -> str:
+def plot_table(
+    results_csv: str, output: str, row: str = "exploration.k", column: str = "exploration.beta", title: str | None = None
+) -> str:
     """The paper's Table 1 (success rate, count-1 %) as ``OUTPUT.md`` and a heatmap ``OUTPUT.png``."""
     rows, cols, success, count1, seeds = sweep_table(results_csv, row, column)
+    heading = title
     fmt = lambda v: "%g" % v  # noqa: E731
     lines = [f"| {row} \\ {column} | " + " | ".join(fmt(c) for c in cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for i, rv in enumerate(rows):
@@ -193,6 +196,10 @@ def plot_table(results_csv: str, output: str, row: str = "exploration.k", column
                     ax.text(j, i, f"{values[i, j]:.2f}" if title == "success rate" else f"{values[i, j]:.0f}",
                             ha="center", va="center", color="k" if bright else "w", fontsize=9)  # fmt: skip
         fig.colorbar(image, ax=ax)
+    n_seeds = sorted({int(n) for n in np.unique(seeds) if n > 0})
+    budget = f", {heading}" if heading else ""
+    fig.suptitle(f"{os.path.basename(os.path.dirname(os.path.abspath(results_csv)))}: seeds per cell "
+                 f"{'/'.join(map(str, n_seeds))}{budget}")  # fmt: skip
     fig.tight_layout()
     fig.savefig(f"{output}.png", dpi=120)
     plt.close(fig)
@@ -237,6 +244,7 @@ def main(argv: list[str] | None = None) -> None:
     table.add_argument("--row", default="exploration.k")
     table.add_argument("--column", default="exploration.beta")
     table.add_argument("-o", "--output", default="table", help="output prefix (.md and .png)")
+    table.add_argument("--title", default=None, help="added to the heatmap's title, e.g. the budget")
     simhash = sub.add_parser("simhash", help="the SimHash grouping figure")
     simhash.add_argument("--k", type=int, nargs="+", default=[8, 16, 32])
     simhash.add_argument("--points", type=int, default=2000)
@@ -247,7 +255,7 @@ def main(argv: list[str] | None = None) -> None:
     elif args.what == "collisions":
         plot_collisions(args.groups, args.output, args.confidence)
     elif args.what == "table":
-        print(plot_table(args.results, args.output, args.row, args.column))
+        print(plot_table(args.results, args.output, args.row, args.column, args.title))
     else:
         plot_simhash(args.output, tuple(args.k), args.points)
     print(f"wrote {args.output}")
