@@ -21,9 +21,12 @@ def main(argv: list[str] | None = None) -> int:
         from sb3_macb.zoo.experiment import ExperimentError
         from sb3_macb.zoo.train import train
 
+        debug = "--debug" in rest
         try:
-            train(rest)
-        except ExperimentError as exc:  # a user's mistake: one line, no traceback
+            train([a for a in rest if a != "--debug"])
+        except ExperimentError as exc:  # a user's mistake: one line, no traceback (unless --debug)
+            if debug:
+                raise
             print(f"sb3-macb train: error: {exc}", file=sys.stderr)
             return 2
     elif command == "sweep":

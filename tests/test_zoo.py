@@ -264,3 +264,59 @@ def test_sweep_pack_trains_queued_points_together_as_they_would_run_alone(tmp_pa
     bad.write_text(config.read_text().replace("exploration.beta: [0.5]", "learning_rate: [0.001, 0.01]"))
     with pytest.raises(ValueError, match="only MACB's settings"):
         sweep(["--config", str(bad), "--study-name", "q", "-f", str(tmp_path / "sw2"), "--pack", "2"])
+
+
+@pytest.mark.parametrize("spelling", ["-c", "--conf", "-conf", "--conf-file", "--conf-file=", "--conf="])
+def test_every_spelling_of_the_config_option_is_used(tmp_path, spelling):
+    conf = tmp_path / "tiny.yml"
+    entry = yaml.safe_load(Path(DEFAULT_CONFIG).read_text())["sb3_macb/CommunicativeNavigation-v0"]
+    conf.write_text(yaml.safe_dump({"sb3_macb/CommunicativeNavigation-v0": {**entry, "n_timesteps": 40,
+                                    "policy_kwargs": "dict(net_arch=[8])", "learning_starts": 10, "batch_size": 4}}))  # fmt: skip
+    option = [spelling + str(conf)] if spelling.endswith("=") else [spelling, str(conf)]
+    folder = train(["--env", "sb3_macb/CommunicativeNavigation-v0", "-f", str(tmp_path / "logs"), "--no-progress",
+                    "--verbose", "0", *option])  # fmt: skip
+    assert len(np.load(os.path.join(folder, "evaluations.npz"))["timesteps"]) == 2  # the file's 40 steps, not 800k
+
+
+def test_hyperparameter_strings_cannot_run_code(tmp_path):
+    from sb3_macb.cli import main
+    from sb3_macb.zoo.experiment import ExperimentError
+
+    marker = tmp_path / "pwned"
+    attack = f"__import__('os').system('touch {marker}')"
+    entry = yaml.safe_load(Path(DEFAULT_CONFIG).read_text())["sb3_macb/CommunicativeNavigation-v0"]
+    env = ["--env", "sb3_macb/CommunicativeNavigation-v0", "-f", str(tmp_path / "logs"), "--no-progress", "-n", "40"]
+    for name, value in (("policy_kwargs", attack), ("callback", [{"os.system": {"command": f"touch {marker}"}}])):
+        conf = tmp_path / f"{name}.yml"
+        conf.write_text(yaml.safe_dump({"sb3_macb/CommunicativeNavigation-v0": {**entry, name: value}}))
+        with pytest.raises(ExperimentError, match=f"'{name}'.*--unsafe-eval"):
+            train([*env, "-conf", str(conf)])
+    with pytest.raises(ExperimentError, match="-params policy_kwargs.*not allowed"):
+        train([*env, "-params", f"policy_kwargs:{attack}"])
+    assert main(["train", *env, "--env-kwargs", f"reward:{attack}"]) == 2  # one line on stderr, no traceback
+    with pytest.raises(ExperimentError, match="not a .yml"):
+        train([*env, "-conf", "os"])  # rl_zoo3 would import a Python module of that name
+    sweep_config = tmp_path / "sweep.yml"
+    sweep_config.write_text(yaml.safe_dump({"env": "sb3_macb/CommunicativeNavigation-v0", "n_timesteps": 40,
+                                            "hyperparams": {"policy_kwargs": attack}, "grid": {"exploration.k": [8]},
+                                            "seeds": [0]}))  # fmt: skip
+    with pytest.raises(ExperimentError, match="policy_kwargs"):
+        sweep_module.run_trial(sweep_module.load_config(str(sweep_config)), {"exploration.k": 8, "seed": 0}, str(tmp_path / "t"))
+    assert not marker.exists()
+    with pytest.raises(ExperimentError, match="-params.*'learning_rat'.*did you mean 'learning_rate'"):
+        train([*env, "-params", "learning_rat:0.1"])
+    # asked for explicitly, strings are Python again
+    folder = train([*env, "--verbose", "0", "--unsafe-eval", "-params", "policy_kwargs:dict(net_arch=[int('8')])",
+                    "learning_starts:10", "batch_size:4"])  # fmt: skip
+    assert MADDPG.load(os.path.join(folder, "sb3_macb-CommunicativeNavigation-v0.zip")).policy.net_arch == [8]
+
+
+def test_policy_alone_saves_and_loads(tmp_path):
+    from sb3_macb import MADDPGPolicy
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    model = MADDPG("MlpPolicy", make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 1), policy_kwargs=dict(net_arch=[8]), seed=0)
+    model.policy.save(tmp_path / "policy.pth")
+    policy = MADDPGPolicy.load(tmp_path / "policy.pth")
+    obs = make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 4).reset()
+    assert np.array_equal(policy.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])

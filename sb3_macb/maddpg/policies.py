@@ -179,6 +179,7 @@ class MADDPGPolicy(BasePolicy):
         implementation is used where the device supports it.
     :param n_runs: Independent runs packed in the stacked tensors (set by MADDPG; 1 for an ordinary model).
     :param run_seeds: Seed of each run's initial weights (set by MADDPG; None: torch's global generator).
+    :param normalize_images: Must be False (accepted so that SB3's ``BasePolicy.load`` can rebuild the policy).
     """
 
     def __init__(
@@ -195,7 +196,10 @@ class MADDPGPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         n_runs: int = 1,
         run_seeds: list[int] | None = None,
+        normalize_images: bool = False,
     ):
+        if normalize_images:
+            raise ValueError("MADDPGPolicy works on vector observations: normalize_images must be False")
         super().__init__(
             observation_space,
             action_space,

@@ -45,7 +45,60 @@ def check_hyperparams(hyperparams: dict[str, Any], where: str) -> None:
         for key in unknown:
             close = difflib.get_close_matches(key, known, n=1)
             hints.append(f"'{key}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
-        raise ValueError(f"Unknown hyperparameter(s) in {where}: {', '.join(hints)}. Known keys: {sorted(known)}")
+        from sb3_macb.zoo.experiment import ExperimentError
+
+        raise ExperimentError(f"Unknown hyperparameter(s) in {where}: {', '.join(hints)}. Known keys: {sorted(known)}")
+
+
+# Hyperparameter strings rl_zoo3 evaluates as Python, and keys whose values name classes it imports and calls
+EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs", "monitor_kwargs", "normalize")
+CLASS_NAME_KEYS = ("callback", "env_wrapper", "vec_env_wrapper")
+# Modules whose classes a YAML file may name without --unsafe-eval
+SAFE_MODULES = ("sb3_macb.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.", "gymnasium.wrappers.", "supersuit.")
+
+UNSAFE_HINT = "pass --unsafe-eval to evaluate hyperparameter strings as Python (only for files you trust)"
+
+
+def _class_names(value: Any) -> list[str]:
+    """The dotted class names in an rl_zoo3 callback/wrapper entry (a name, a {name: kwargs} dict, or a list of them)."""
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [str(k) for k in value]
+    if isinstance(value, list):
+        return [name for item in value for name in _class_names(item)]
+    return []
+
+
+def make_safe(hyperparams: dict[str, Any], where: str) -> dict[str, Any]:
+    """
+    Parse the strings rl_zoo3 would ``eval`` with the restricted evaluator, and refuse class names outside the
+    trusted libraries, so that a YAML file, a sweep config or ``-params`` cannot run code. Errors name the key.
+
+    :param hyperparams: Hyperparameters (after variants and overrides).
+    :param where: The source, for error messages.
+    """
+    from sb3_macb.zoo.experiment import ExperimentError, safe_eval
+
+    result = dict(hyperparams)
+    for key in EVALUATED_KEYS:
+        if isinstance(result.get(key), str):
+            if key == "replay_buffer_class":
+                raise ExperimentError(f"{where}: '{key}' names a class as a string, which rl_zoo3 evaluates; {UNSAFE_HINT}")
+            try:
+                result[key] = safe_eval(result[key], f"{where}: '{key}'")
+            except ExperimentError as exc:
+                raise ExperimentError(f"{exc} ({UNSAFE_HINT})") from None
+    for key in CLASS_NAME_KEYS:
+        bad = [name for name in _class_names(result.get(key)) if not name.startswith(SAFE_MODULES)]
+        if bad:
+            raise ExperimentError(
+                f"{where}: '{key}' names {bad}, outside the trusted libraries {list(SAFE_MODULES)}; rl_zoo3 would import "
+                f"and call it. {UNSAFE_HINT}"
+            )
+    return result
 
 
 def apply_overrides(hyperparams: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -108,6 +161,7 @@ def _experiment_manager_class() -> type:
 
         variants: list[str] = []
         overrides: dict[str, Any] = {}
+        unsafe_eval = False
         last_save_path: str | None = None
 
         def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -117,11 +171,16 @@ def _experiment_manager_class() -> type:
                 variants = (yaml.safe_load(file) or {}).get("variants", {}) if self.config.endswith((".yml", ".yaml")) else {}
             for name in self.variants:
                 if name not in variants:
-                    raise ValueError(f"Unknown variant '{name}' in {self.config}; known variants: {sorted(variants)}")
+                    from sb3_macb.zoo.experiment import ExperimentError
+
+                    raise ExperimentError(f"Unknown variant '{name}' in {self.config}; known variants: {sorted(variants)}")
                 hyperparams = apply_overrides(hyperparams, variants[name])
             hyperparams = apply_overrides(hyperparams, self.overrides)
+            check_hyperparams({key.split(".")[0]: None for key in custom or {}}, "-params")  # a typo there is named there
             hyperparams = apply_overrides(hyperparams, custom or {})
             check_hyperparams(hyperparams, f"{self.config} (env {self.env_name.gym_id})")
+            if not self.unsafe_eval:
+                hyperparams = make_safe(hyperparams, f"{self.config} (env {self.env_name.gym_id}) or -params")
             self.custom_hyperparams = custom
             saved = {key: hyperparams[key] for key in sorted(hyperparams)}
             return hyperparams, saved
@@ -157,12 +216,46 @@ def _experiment_manager_class() -> type:
 
 
 def _with_defaults(argv: list[str], defaults: dict[str, list[str]]) -> list[str]:
-    present = {arg.split("=")[0] for arg in argv if arg.startswith("-")}
+    """
+    Append each default option that ``argv`` does not give, recognising every spelling argparse accepts for
+    rl_zoo3's options (``-c``, ``--conf``, ``-conf``, ``--conf-file``, ``--conf-file=X``, ...).
+
+    :param defaults: ``"-short|--long"`` option spellings (as rl_zoo3 defines them) to the default's values.
+    """
+    parser = argparse.ArgumentParser(add_help=False)
+    dests = {}
+    for i, flags in enumerate(defaults):
+        dest = f"option_{i}"
+        dests[flags] = dest
+        parser.add_argument(*flags.split("|"), dest=dest, nargs="?", const=True, default=None)
+    given, _ = parser.parse_known_args(argv)
     extra: list[str] = []
     for flags, value in defaults.items():
-        if not any(flag in present for flag in flags.split("|")):
-            extra += [flags.split("|")[0], *value]
+        if getattr(given, dests[flags]) is None:
+            extra += [flags.split("|")[-1], *value]
     return argv + extra
+
+
+def _safe_store_dict(unsafe: bool) -> type:
+    """rl_zoo3's ``StoreDict`` (KEY:VALUE options), parsing the values with the restricted evaluator."""
+    from rl_zoo3.utils import StoreDict
+
+    from sb3_macb.zoo.experiment import ExperimentError, safe_eval
+
+    class SafeStoreDict(StoreDict):
+        def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+            if unsafe:
+                return super().__call__(parser, namespace, values, option_string)
+            result = {}
+            for item in values:
+                key, _, text = item.partition(":")
+                try:
+                    result[key] = safe_eval(text, f"{option_string} {key}")
+                except ExperimentError as exc:
+                    raise ExperimentError(f"{exc} ({UNSAFE_HINT})") from None
+            setattr(namespace, self.dest, result)
+
+    return SafeStoreDict
 
 
 def _checkpointed_train(argv: list[str]) -> str:
@@ -236,6 +329,16 @@ def _checkpointed_train(argv: list[str]) -> str:
     return folder
 
 
+TRAIN_HELP = """sb3-macb train: rl_zoo3's train with MADDPG registered; its options follow. sb3_macb adds:
+  --variant NAME[,NAME...]   named overrides from the YAML file's 'variants' section (e.g. maddpg,fast)
+  --no-progress              no progress bar
+  --unsafe-eval              evaluate hyperparameter strings (YAML, -params, --env-kwargs) as Python, as rl_zoo3
+                             does; by default they are parsed without running code (literals, dict(...), nn.ReLU...)
+  --checkpoint-freq N        checkpoint every N steps into the run folder (a checkpointed run: see README)
+  --resume RUN_FOLDER        continue a checkpointed run from its latest checkpoint (same command)
+"""
+
+
 def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None) -> str | None:
     """
     Run ``sb3-macb train`` with these arguments (rl_zoo3's train arguments plus ``--variant``).
@@ -251,10 +354,20 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
         if overrides:
             argv = [*argv, "-params", *(f"{k}:{v!r}" for k, v in overrides.items())]
         return _checkpointed_train([a for part in argv for a in (part.split("=", 1) if part.startswith("--") and "=" in part else [part])])
+    if any(a in ("-h", "--help") for a in argv):
+        print(TRAIN_HELP)
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--variant", default="")
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--unsafe-eval", action="store_true")
     own, rest = parser.parse_known_args(argv)
+    given_conf = argparse.ArgumentParser(add_help=False)
+    given_conf.add_argument("-conf", "--conf-file", dest="conf_file", default=None)
+    conf_file = given_conf.parse_known_args(rest)[0].conf_file
+    if conf_file is not None and not own.unsafe_eval and not str(conf_file).endswith((".yml", ".yaml")):
+        from sb3_macb.zoo.experiment import ExperimentError
+
+        raise ExperimentError(f"--conf-file {conf_file!r} is not a .yml/.yaml file; rl_zoo3 would import it as Python. {UNSAFE_HINT}")
     defaults = {
         "--algo": ["maddpg"],
         "-conf|--conf-file": [DEFAULT_CONFIG],
@@ -277,13 +390,16 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     manager_class = _experiment_manager_class()
     manager_class.variants = [v for v in own.variant.split(",") if v]
     manager_class.overrides = dict(overrides or {})
+    manager_class.unsafe_eval = own.unsafe_eval
     original, zoo_train.ExperimentManager = zoo_train.ExperimentManager, manager_class
+    original_store, zoo_train.StoreDict = zoo_train.StoreDict, _safe_store_dict(own.unsafe_eval)
     saved_argv = sys.argv
     try:
         sys.argv = ["sb3-macb train", *rest]
         zoo_train.train()
     finally:
         zoo_train.ExperimentManager = original
+        zoo_train.StoreDict = original_store
         sys.argv = saved_argv
     return manager_class.last_save_path
 
