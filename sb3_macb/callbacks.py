@@ -153,10 +153,12 @@ class MultiAgentEvalCallback(EvalCallback):
     :param callback_on_new_best: A callback to run when a new best model is found.
     :param env_kwargs: Keyword arguments for the env when ``eval_env`` is an env id.
     :param seed: Seed of the eval env when it is built from an env id (for a pack: the model's run seeds).
-    :param dump_logs: Dump the logger after each evaluation (as SB3 does).
-    :param verbose: Verbosity level.
+    :param dump_logs: Dump the logger (print the table of values) after evaluations, as SB3 does after each.
+    :param verbose: Verbosity level: 1 prints a one-line summary with each dump, 0 nothing.
     :param warn: Warn when the eval env is not wrapped with a Monitor.
     :param run_log_paths: For a pack: one folder per run for its ``evaluations.npz`` (instead of ``log_path``).
+    :param log_freq: Dump the logger and print the summary every this many evaluations (1: after each, as SB3).
+        The paper's protocol evaluates 40,000 times: a table each time is unreadable.
     """
 
     def __init__(
@@ -179,7 +181,11 @@ class MultiAgentEvalCallback(EvalCallback):
         verbose: int = 1,
         warn: bool = True,
         run_log_paths: list[str] | None = None,
+        log_freq: int = 1,
     ):
+        if log_freq < 1:
+            raise ValueError(f"log_freq must be >= 1, got {log_freq}")
+        self.log_freq = log_freq
         self._env_id = eval_env if isinstance(eval_env, str) else None
         self._env_kwargs = env_kwargs
         if isinstance(eval_env, str):
@@ -406,11 +412,13 @@ class MultiAgentEvalCallback(EvalCallback):
         if with_macb:
             self.logger.record("exploration/num_codes", float(np.mean([e.num_codes for e in with_macb])))
             self.logger.record("exploration/count1_percent", 100.0 * float(np.mean([e.count1_fraction for e in with_macb])))
-        if self.verbose >= 1:
+        report = len(self.evaluations_timesteps) % self.log_freq == 0
+        if self.verbose >= 1 and report:
             rate = "n/a" if success_rate is None else f"{success_rate:.2f}"
             runs = "" if self.n_runs == 1 else f" (mean of {self.n_runs} runs)"
-            print(f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}, return {mean_reward:.2f}{runs}")
-        if self.dump_logs:
+            window = "" if self.log_freq == 1 else f", mean of the last {self.log_freq} evaluations {self._recent_rate():.2f}"
+            print(f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}{window}, return {mean_reward:.2f}{runs}")
+        if self.dump_logs and report:
             self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
             self.logger.dump(self.num_timesteps)
 
@@ -426,6 +434,11 @@ class MultiAgentEvalCallback(EvalCallback):
             if self.callback is not None:
                 continue_training = continue_training and self._on_event()
         return continue_training
+
+    def _recent_rate(self) -> float:
+        """Success rate over the last ``log_freq`` evaluations, mean over the runs."""
+        rates = [np.mean([np.mean(s) for s in r["successes"][-self.log_freq :] if len(s)] or [0.0]) for r in self.records]
+        return float(np.mean(rates))
 
     def _run_file(self, run: int) -> str | None:
         if self.run_log_paths is not None:

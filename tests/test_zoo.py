@@ -320,3 +320,15 @@ def test_policy_alone_saves_and_loads(tmp_path):
     policy = MADDPGPolicy.load(tmp_path / "policy.pth")
     obs = make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 4).reset()
     assert np.array_equal(policy.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+
+
+def test_console_is_quiet_and_shows_the_effective_hyperparameters(tmp_path, capsys):
+    folder = train(["--env", "sb3_macb/CommunicativeNavigation-v0", "-n", "2100", "-f", str(tmp_path), "--no-progress",
+                    "--variant", "maddpg,fast", "-params", "batch_size:16"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert out.count("rollout/ ") <= 2 and out.count("eval/ ") <= 2  # not a table every evaluation or 4 episodes
+    assert "variants: maddpg, fast" in out and "'batch_size': 16" in out and "'net_arch': [64, 64]" in out
+    assert "Default hyperparameters" not in out  # rl_zoo3's print of the file's entry, before variants
+    assert out.count("Eval num_timesteps=") == 1  # one summary line per 100 evaluations
+    config = yaml.safe_load(Path(folder, "sb3_macb-CommunicativeNavigation-v0", "config.yml").read_text())
+    assert dict(config)["n_timesteps"] == 2100

@@ -11,12 +11,15 @@ rl_zoo3 does the work (argument parsing, YAML, schedules, noise, folders, saving
 """
 
 import argparse
+import contextlib
 import difflib
 import inspect
+import io
 import os
 import sys
 from copy import deepcopy
 from pathlib import Path
+from pprint import pprint
 from typing import Any
 
 import yaml
@@ -166,7 +169,8 @@ def _experiment_manager_class() -> type:
 
         def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
             custom, self.custom_hyperparams = self.custom_hyperparams, None
-            hyperparams, _ = super().read_hyperparameters()
+            with contextlib.redirect_stdout(io.StringIO()):  # rl_zoo3 prints the file's entry before variants apply
+                hyperparams, _ = super().read_hyperparameters()
             with open(self.config) as file:
                 variants = (yaml.safe_load(file) or {}).get("variants", {}) if self.config.endswith((".yml", ".yaml")) else {}
             for name in self.variants:
@@ -183,6 +187,12 @@ def _experiment_manager_class() -> type:
                 hyperparams = make_safe(hyperparams, f"{self.config} (env {self.env_name.gym_id}) or -params")
             self.custom_hyperparams = custom
             saved = {key: hyperparams[key] for key in sorted(hyperparams)}
+            if self.n_timesteps > 0:
+                saved["n_timesteps"] = self.n_timesteps  # config.yml records the steps that run, not the file's
+            if self.verbose > 0:
+                used = ", ".join(self.variants) or "none"
+                print(f"Hyperparameters for {self.env_name.gym_id} from {self.config} (variants: {used}; overrides and -params applied):")
+                pprint(saved)
             return hyperparams, saved
 
         def create_callbacks(self) -> None:
@@ -206,7 +216,8 @@ def _experiment_manager_class() -> type:
                         best_model_save_path=self.save_path,
                         deterministic=self.deterministic_eval,
                         callback_after_eval=after_eval,
-                        verbose=0,
+                        log_freq=1 if self.verbose >= 2 else 100,  # a summary every 100 evaluations; -v 2: every one
+                        verbose=1 if self.verbose >= 1 else 0,
                     )
                 )
             elif stoppers:
@@ -375,6 +386,7 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
         "--eval-episodes": ["10"],
         "--gym-packages": ["sb3_macb.envs"],
         "--num-threads": ["1"],
+        "--log-interval": ["100"],  # SB3's table every 100 training episodes (its default, 4, prints 10,000 tables)
     }
     if not own.no_progress:
         defaults["-P|--progress"] = []
