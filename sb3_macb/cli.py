@@ -32,7 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     elif command == "sweep":
         from sb3_macb.zoo.sweep import main as sweep
 
-        sweep(rest)
+        try:
+            return sweep(rest)
+        except (ValueError, ConnectionError) as exc:  # bad config, unreachable storage: one line
+            print(f"sb3-macb sweep: error: {exc}", file=sys.stderr)
+            return 2
     elif command == "plot":
         from sb3_macb.zoo.plots import main as plot
 

@@ -332,3 +332,49 @@ def test_console_is_quiet_and_shows_the_effective_hyperparameters(tmp_path, caps
     assert out.count("Eval num_timesteps=") == 1  # one summary line per 100 evaluations
     config = yaml.safe_load(Path(folder, "sb3_macb-CommunicativeNavigation-v0", "config.yml").read_text())
     assert dict(config)["n_timesteps"] == 2100
+
+
+def test_a_sweep_repairs_a_partial_queue_retries_failures_and_reports_them(tmp_path):
+    import csv as csv_module
+
+    from sb3_macb.zoo.sweep import grid_points, point_key, work
+
+    storage_url = f"sqlite:///{tmp_path / 'sweep.db'}"
+    config = sweep_config(tmp_path, n_timesteps=40, betas=(0.5,), ks=(16, 32))
+    points = grid_points(load_config(str(config)))
+    storage = make_storage(storage_url, 30)
+    # a first worker died while queueing the grid: its marker exists, one of the two points is queued
+    study = optuna.create_study(study_name="partial", storage=storage, direction="maximize")
+    optuna.create_study(study_name="partial.grid", storage=storage)
+    study.enqueue_trial(points[0], user_attrs={"grid_point": True, "point": point_key(points[0])})
+    assert work(str(config), storage_url, "partial", str(tmp_path / "logs"), enqueue_wait=0.5) == 0
+    check_grid_done_once(storage_url, "partial", 2)
+    rows = list(csv_module.DictReader(open(tmp_path / "logs" / "partial" / "results.csv")))
+    assert [r["status"] for r in rows] == ["done", "done"]
+
+    broken = sweep_config(tmp_path, n_timesteps=40, betas=(0.5,), ks=(16,))
+    data = yaml.safe_load(broken.read_text())
+    data["hyperparams"]["env_kwargs"] = {"reward": "bogus"}  # every run of it fails
+    broken.write_text(yaml.safe_dump(data))
+    assert work(str(broken), storage_url, "broken", str(tmp_path / "logs"), max_attempts=2) == 1
+    failed = [t for t in optuna.load_study(study_name="broken", storage=storage_url).get_trials() if t.state == TrialState.FAIL]
+    assert len(failed) == 2 and "bogus" in failed[0].user_attrs["error"]
+    rows = list(csv_module.DictReader(open(tmp_path / "logs" / "broken" / "results.csv")))
+    assert rows[0]["status"] == "failed" and "bogus" in rows[0]["error"]
+
+
+def test_a_storage_that_never_answers_fails_fast_with_a_clear_error():
+    import socket
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    accepted = []
+    threading.Thread(target=lambda: [accepted.append(server.accept()) for _ in range(8)], daemon=True).start()
+    port = server.getsockname()[1]
+    start = time.time()
+    with pytest.raises(ConnectionError, match=rf"postgresql://user:\*\*\*@127.0.0.1:{port}/db .*gave up"):
+        make_storage(f"postgresql://user:secret@127.0.0.1:{port}/db", 30, connect_timeout=1, deadline=3)
+    assert time.time() - start < 30 and accepted  # it connected, then gave up instead of hanging
+    server.close()

@@ -9,7 +9,10 @@ grid:
   runs once;
 - workers send heartbeats; the trial of a worker that dies is failed by the next worker that looks at the study
   and put back in the queue (Optuna's ``RetryHeartbeatStaleTrialCallback``), where another worker picks it up;
-- a worker leaves when nothing is waiting or running;
+- every worker checks the study against the grid and queues what is missing (a worker killed while queueing the
+  grid, a point whose trial failed); a point that failed ``--max-attempts`` times is given up;
+- a worker leaves when nothing is waiting or running, writes ``results.csv`` (every point with its status: done,
+  failed with its error, missing) and exits non-zero if any point is not done;
 - with ``--pack K`` a worker claims up to K waiting points at once and trains them together in one process (one
   set of stacked tensors; each point is the run it would be alone), which pays the per-step fixed cost once. Only
   MACB's settings (``exploration.*``) and ``noise_std`` may vary in such a grid (network shapes must be equal).
@@ -35,6 +38,7 @@ import argparse
 import csv
 import itertools
 import os
+import sys
 import time
 import warnings
 from typing import Any, Callable, TypeVar
@@ -91,7 +95,7 @@ def grid_points(config: dict[str, Any]) -> list[dict[str, Any]]:
     return points
 
 
-def _with_retries(action: Callable[[], T], attempts: int = 10) -> T:
+def _with_retries(action: Callable[[], T], attempts: int = 10, deadline: float | None = None) -> T:
     """
     Run a storage action, retrying transient database errors.
 
@@ -103,17 +107,27 @@ def _with_retries(action: Callable[[], T], attempts: int = 10) -> T:
 
     from sqlalchemy.exc import SQLAlchemyError
 
+    start = time.monotonic()
     for attempt in range(attempts):
         try:
             return action()
         except (SQLAlchemyError, optuna.exceptions.StorageInternalError):
-            if attempt == attempts - 1:
+            if attempt == attempts - 1 or (deadline is not None and time.monotonic() - start > deadline):
                 raise
             time.sleep(0.2 + random.random())
     raise AssertionError("unreachable")
 
 
-def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optuna.storages.RDBStorage:
+def _redacted(url: str) -> str:
+    """The storage URL without its password."""
+    import re
+
+    return re.sub(r"://([^:/@]+):[^@]*@", r"://\1:***@", url)
+
+
+def make_storage(
+    url: str, heartbeat_interval: int, attempts: int = 10, connect_timeout: int = 10, deadline: float = 60.0
+) -> optuna.storages.RDBStorage:
     """
     An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers.
 
@@ -123,21 +137,47 @@ def make_storage(url: str, heartbeat_interval: int, attempts: int = 10) -> optun
     :param url: ``sqlite:///...`` or ``postgresql://...``.
     :param heartbeat_interval: Seconds between heartbeats; a trial silent for 3 intervals is failed and retried.
     :param attempts: Tries at connecting (and creating the tables) before giving up.
+    :param connect_timeout: Seconds a PostgreSQL connection attempt may take (a server that accepts the connection
+        but never answers would otherwise hang the worker).
+    :param deadline: Seconds after which connecting is given up with an error that names the server.
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         retry = optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=3)
-    engine_kwargs = {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else None
-    return _with_retries(
-        lambda: optuna.storages.RDBStorage(
-            url, engine_kwargs=engine_kwargs, heartbeat_interval=heartbeat_interval,
-            grace_period=3 * heartbeat_interval, heartbeat_stale_trial_callback=retry,
-        ),
-        attempts,
-    )  # fmt: skip
+    if url.startswith("sqlite"):
+        engine_kwargs: dict[str, Any] | None = {"connect_args": {"timeout": 60}}
+    elif url.startswith("postgresql"):
+        engine_kwargs = {"connect_args": {"connect_timeout": connect_timeout}, "pool_pre_ping": True}
+    else:
+        engine_kwargs = None
+    try:
+        return _with_retries(
+            lambda: optuna.storages.RDBStorage(
+                url, engine_kwargs=engine_kwargs, heartbeat_interval=heartbeat_interval,
+                grace_period=3 * heartbeat_interval, heartbeat_stale_trial_callback=retry,
+            ),
+            attempts,
+            deadline=deadline,
+        )  # fmt: skip
+    except Exception as exc:  # noqa: BLE001 (every way of failing to connect gets the same clear message)
+        message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)} (gave up after {deadline:.0f} s): {message}") from None
 
 
-def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name: str, points: list[dict]) -> None:
+def point_key(point: dict[str, Any]) -> str:
+    """A grid point's identity (its parameters and seed), as stored in its trials' ``point`` attribute."""
+    import json
+
+    return json.dumps(point, sort_keys=True, default=str)
+
+
+def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name: str, points: list[dict],
+                  wait: float = 60.0) -> None:  # fmt: skip
+    """
+    The first worker (the one that creates the marker study ``NAME.grid``) queues every point; the others wait for
+    it to finish. If it died while queueing (no ``n_points`` on the marker after ``wait`` seconds), the waiting
+    worker goes on: :func:`repair_queue` queues what is missing.
+    """
     marker_name = f"{name}.grid"
     try:
         marker = _with_retries(lambda: optuna.create_study(study_name=marker_name, storage=storage))
@@ -146,16 +186,47 @@ def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name
         first = False
     if first:
         for point in points:
-            study.enqueue_trial(point, user_attrs={"grid_point": True})
+            study.enqueue_trial(point, user_attrs={"grid_point": True, "point": point_key(point)})
         marker.set_user_attr("n_points", len(points))
         return
-    for _ in range(600):  # another worker is putting the grid in the queue
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:  # another worker is putting the grid in the queue
         marker = optuna.load_study(study_name=marker_name, storage=storage)
         if "n_points" in marker.user_attrs:
             break
         time.sleep(0.1)
     if marker.user_attrs.get("n_points") not in (None, len(points)):
         raise ValueError(f"Study '{name}' was started with another grid ({marker.user_attrs['n_points']} points)")
+
+
+def point_states(study: optuna.Study, points: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """For each grid point: its trials' states, failures and the last error message."""
+    states = {point_key(p): {"point": p, "active": 0, "complete": [], "failed": 0, "error": ""} for p in points}
+    for trial in study.get_trials(deepcopy=False):
+        entry = states.get(trial.user_attrs.get("point", ""))
+        if entry is None:
+            continue
+        if trial.state in (TrialState.WAITING, TrialState.RUNNING):
+            entry["active"] += 1
+        elif trial.state == TrialState.COMPLETE:
+            entry["complete"].append(trial)
+        elif trial.state == TrialState.FAIL:
+            entry["failed"] += 1
+            entry["error"] = trial.user_attrs.get("error", entry["error"]) or "the worker running it died"
+    return states
+
+
+def repair_queue(study: optuna.Study, points: list[dict[str, Any]], max_attempts: int) -> int:
+    """
+    Queue every grid point that has no finished, running or queued trial and has failed fewer than
+    ``max_attempts`` times (a worker that died while queueing the grid, a point that failed). Returns how many.
+    """
+    queued = 0
+    for key, entry in point_states(study, points).items():
+        if not entry["active"] and not entry["complete"] and entry["failed"] < max_attempts:
+            study.enqueue_trial(entry["point"], user_attrs={"grid_point": True, "point": key})
+            queued += 1
+    return queued
 
 
 def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -> tuple[float, float, str]:
@@ -252,24 +323,51 @@ class _Heartbeats:
         self._thread.join()
 
 
-def write_results(study: optuna.Study, path: str) -> None:
-    """The finished grid trials as CSV: parameters, success rate, count-1 fraction, run folder."""
+def write_results(study: optuna.Study, path: str, points: list[dict[str, Any]] | None = None) -> int:
+    """
+    The grid as CSV: parameters, success rate, count-1 fraction, run folder and status (``done``, ``failed`` with the
+    error, ``missing``) of every point. Returns 0 if every point is done, else 1 (and says which on stderr).
+    """
+    import json
+
     trials = [t for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)) if t.user_attrs.get("grid_point")]
-    names = sorted({name for t in trials for name in t.params})
+    states = point_states(study, points) if points is not None else {}
+    names = sorted({name for t in trials for name in t.params} | {n for p in points or [] for n in p})
+    rows, problems, seen = [], [], set()
+    for t in sorted(trials, key=lambda t: t.number):
+        key = t.user_attrs.get("point") or point_key(t.params)
+        if key in seen:
+            continue  # (a point run twice, after a repair race: the first result counts)
+        seen.add(key)
+        rows.append([t.number, *[t.params.get(n) for n in names], t.user_attrs.get("success_rate"),
+                     t.user_attrs.get("count1_fraction"), t.user_attrs.get("run_folder"), "done", ""])  # fmt: skip
+    for key, entry in states.items():
+        if key in seen or entry["complete"]:
+            continue
+        status = "failed" if entry["failed"] else "missing"
+        problems.append(f"{status}: {json.loads(key)} {entry['error']}".strip())
+        rows.append(["", *[entry["point"].get(n) for n in names], "", "", "", status, entry["error"]])
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     with open(path, "w", newline="") as file:
         writer = csv.writer(file)
-        writer.writerow(["trial", *names, "success_rate", "count1_fraction", "run_folder"])
-        for t in sorted(trials, key=lambda t: t.number):
-            writer.writerow(
-                [t.number, *[t.params.get(n) for n in names], t.user_attrs.get("success_rate"),
-                 t.user_attrs.get("count1_fraction"), t.user_attrs.get("run_folder")]
-            )  # fmt: skip
+        writer.writerow(["trial", *names, "success_rate", "count1_fraction", "run_folder", "status", "error"])
+        writer.writerows(rows)
+    for line in problems:
+        print(f"sb3-macb sweep: {line}", file=sys.stderr)
+    return 1 if problems else 0
 
 
 def work(
-    config_path: str, storage_url: str, study_name: str, log_folder: str, heartbeat: int = 30, poll: float = 5.0, pack: int = 0
-) -> None:
+    config_path: str,
+    storage_url: str,
+    study_name: str,
+    log_folder: str,
+    heartbeat: int = 30,
+    poll: float = 5.0,
+    pack: int = 0,
+    max_attempts: int = 3,
+    enqueue_wait: float = 60.0,
+) -> int:
     """
     Join the sweep as a worker and run grid points until none is waiting or running.
 
@@ -281,6 +379,10 @@ def work(
     :param poll: Seconds between looks at the study while other workers' trials run.
     :param pack: Claim up to this many waiting grid points at once and train them together in one process
         (:mod:`sb3_macb.zoo.experiment`); 0: one point at a time through rl_zoo3's train.
+    :param max_attempts: A point that fails this many times is given up and reported.
+    :param enqueue_wait: Seconds to wait for the worker that queues the grid before repairing the queue.
+    :return: 0 when every grid point finished; 1 when some failed ``max_attempts`` times or are missing
+        (``results.csv`` lists them with their status and error).
     """
     config = load_config(config_path)
     if pack > 0:
@@ -290,7 +392,7 @@ def work(
     study = _with_retries(
         lambda: optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
     )
-    _enqueue_once(storage, study, study_name, points)
+    _enqueue_once(storage, study, study_name, points, wait=enqueue_wait)
     grid = config["grid"]
 
     def objective(trial: optuna.Trial) -> float:
@@ -299,7 +401,11 @@ def work(
         params = {name: trial.suggest_categorical(name, values) for name, values in grid.items()}
         params["seed"] = trial.suggest_categorical("seed", [int(s) for s in config["seeds"]])
         folder = os.path.join(log_folder, study_name, f"trial_{trial.number}")
-        success_rate, count1, run_folder = run_trial(config, params, folder)
+        try:
+            success_rate, count1, run_folder = run_trial(config, params, folder)
+        except Exception as exc:
+            trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:500])
+            raise
         trial.set_user_attr("success_rate", success_rate)
         trial.set_user_attr("count1_fraction", count1)
         trial.set_user_attr("run_folder", run_folder)
@@ -309,17 +415,21 @@ def work(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             optuna.storages.fail_stale_trials(study)
+        repair_queue(study, points, max_attempts)
         trials = study.get_trials(deepcopy=False, states=(TrialState.WAITING, TrialState.RUNNING))
         waiting = sum(t.state == TrialState.WAITING for t in trials)
         if waiting and pack > 0:
-            _work_on_pack(study, storage, config, min(pack, waiting), os.path.join(log_folder, study_name), heartbeat)
+            try:
+                _work_on_pack(study, storage, config, min(pack, waiting), os.path.join(log_folder, study_name), heartbeat)
+            except Exception as exc:  # noqa: BLE001 (the points are failed and retried; the worker goes on)
+                print(f"sb3-macb sweep: a pack failed: {type(exc).__name__}: {exc}", file=sys.stderr)
         elif waiting:
-            study.optimize(objective, n_trials=1)
+            study.optimize(objective, n_trials=1, catch=(Exception,))  # a failing point is retried, then reported
         elif trials:
             time.sleep(poll)
         else:
             break
-    write_results(study, os.path.join(log_folder, study_name, "results.csv"))
+    return write_results(study, os.path.join(log_folder, study_name, "results.csv"), points)
 
 
 def _work_on_pack(
@@ -342,8 +452,9 @@ def _work_on_pack(
     try:
         with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat):
             results = run_pack(config, [(t.number, p) for t, p in claimed], folder)
-    except Exception:
+    except Exception as exc:
         for trial, _ in claimed:
+            trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:500])
             study.tell(trial, state=TrialState.FAIL)
         raise
     for (trial, _), (success_rate, count1, run_folder) in zip(claimed, results):
@@ -353,13 +464,14 @@ def _work_on_pack(
         study.tell(trial, success_rate)
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="sb3-macb sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", required=True, help="sweep config (YAML)")
     parser.add_argument("--storage", default=None, help="Optuna storage URL (default: sqlite:///LOGDIR/sweeps.db)")
     parser.add_argument("--study-name", required=True)
     parser.add_argument("-f", "--log-folder", default="logs/sweeps")
     parser.add_argument("--heartbeat", type=int, default=30, help="seconds between a worker's heartbeats")
+    parser.add_argument("--max-attempts", type=int, default=3, help="tries of a failing point before it is reported")
     parser.add_argument("--pack", type=int, default=0, metavar="K",
                         help="claim up to K queued grid points at once and train them together in one process")  # fmt: skip
     args = parser.parse_args(argv)
@@ -367,4 +479,5 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--pack must be >= 0")
     os.makedirs(args.log_folder, exist_ok=True)
     storage = args.storage or f"sqlite:///{os.path.abspath(os.path.join(args.log_folder, 'sweeps.db'))}"
-    work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack)
+    return work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack,
+                max_attempts=args.max_attempts)  # fmt: skip
