@@ -10,7 +10,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
-from sb3_macb.common.atomic import atomic_write
+from sb3_macb.common import evaluations
 
 
 class _SuccessRateStop(BaseCallback):
@@ -92,11 +92,7 @@ class StopTrainingOnNoSuccessImprovement(_SuccessRateStop):
         return stop
 
 
-# The fields of evaluations.npz beyond SB3's (timesteps, results, ep_lengths), one entry per evaluation
-RECORD_FIELDS = (
-    "timesteps", "results", "ep_lengths", "successes", "final_successes", "episodes", "agent_returns", "collisions",
-    "num_codes", "count1_fraction", "training_collisions",
-)  # fmt: skip
+RECORD_FIELDS = evaluations.FIELDS  # (kept for code that imported it from here)
 
 
 def make_eval_vec_env(
@@ -226,7 +222,7 @@ class MultiAgentEvalCallback(EvalCallback):
 
     def _new_records(self, n_runs: int) -> None:
         self.n_runs = n_runs
-        self.records = [{name: [] for name in RECORD_FIELDS} for _ in range(n_runs)]
+        self.records = [{name: [] for name in evaluations.FIELDS} for _ in range(n_runs)]
         self._alias_records()
 
     def _alias_records(self) -> None:
@@ -462,32 +458,8 @@ class MultiAgentEvalCallback(EvalCallback):
 
 
 def save_evaluations_file(path: str, record: dict[str, list]) -> None:
-    """
-    Write one run's records as ``evaluations.npz``: SB3's fields (``timesteps``, ``results``, ``ep_lengths``,
-    ``successes``) and the multi-agent ones, compressed (read back by ``np.load`` like SB3's file, a fraction of its
-    size for long runs), through a temporary file renamed over ``path``.
-
-    :param path: The file to write.
-    :param record: The lists of :data:`RECORD_FIELDS`, one entry per evaluation.
-    """
-    arrays: dict[str, Any] = {
-        "timesteps": record["timesteps"],
-        "results": record["results"],
-        "ep_lengths": record["ep_lengths"],
-    }
-    for name in ("successes", "final_successes"):
-        if all(record[name]):  # only where every evaluation reported them
-            arrays[name] = record[name]
-    arrays.update(
-        episodes=record["episodes"],
-        agent_returns=np.array(record["agent_returns"]),
-        collisions=record["collisions"],
-        num_codes=record["num_codes"],
-        count1_fraction=record["count1_fraction"],
-        training_collisions=record["training_collisions"],
-    )
-    with atomic_write(path) as file:
-        np.savez_compressed(file, **arrays)
+    """Write one run's records as ``evaluations.npz`` (see :func:`sb3_macb.common.evaluations.save`)."""
+    evaluations.save(path, record)
 
 
 def _final_success(info: dict[str, Any]) -> bool | None:

@@ -12,6 +12,8 @@ import csv
 import os
 import shutil
 
+from sb3_macb.common.evaluations import FILE_NAME
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -27,7 +29,7 @@ def main() -> None:
         name = "_".join(f"{p.split('.')[-1]}_{row[p]}" for p in params)
         target = os.path.join(args.out, name, f"seed_{row['seed']}")
         os.makedirs(target, exist_ok=True)
-        shutil.copy(os.path.join(row["run_folder"], "evaluations.npz"), os.path.join(target, "evaluations.npz"))
+        shutil.copy(os.path.join(row["run_folder"], FILE_NAME), os.path.join(target, FILE_NAME))
         row["run_folder"] = os.path.relpath(target, args.out)
     with open(os.path.join(args.out, "results.csv"), "w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=list(rows[0]))

@@ -20,40 +20,12 @@ import os
 
 import numpy as np
 
-
-def episodes_to(successes: np.ndarray, episodes: np.ndarray, threshold: float, window: int) -> tuple[float, bool]:
-    rate = successes.mean(axis=1)
-    moving = np.convolve(rate, np.ones(window) / window, mode="valid")
-    hits = np.flatnonzero(moving >= threshold)
-    if len(hits):
-        return float(episodes[hits[0] + window - 1]), True
-    return float(episodes[-1]), False
+from sb3_macb.common import evaluations
 
 
-def km_median(times: list[float], reached: list[bool]) -> float | None:
-    """
-    Kaplan-Meier median of the episodes to a threshold: runs that did not reach it are censored at their last
-    episode. None when the estimated survival never falls to one half (fewer than half of the runs reached it).
-    """
-    order = np.argsort(times, kind="stable")
-    at_risk, survival = len(times), 1.0
-    for i in order:
-        if reached[i]:
-            survival *= 1.0 - 1.0 / at_risk
-            if survival <= 0.5:
-                return float(times[i])
-        at_risk -= 1
-    return None
-
-
-def load_run(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray]:
-    """An ``evaluations.npz`` as a dict of arrays, cut at ``max_episodes`` training episodes if given."""
-    with np.load(path) as data:
-        arrays = {name: data[name] for name in data.files}
-    if max_episodes is not None:
-        keep = arrays["episodes"] <= max_episodes
-        arrays = {name: (a[keep] if a.ndim and len(a) == len(keep) else a) for name, a in arrays.items()}
-    return arrays
+episodes_to = evaluations.episodes_to
+km_median = evaluations.km_median
+load_run = evaluations.load
 
 
 def summarize(
@@ -63,9 +35,9 @@ def summarize(
     final: int,
     max_episodes: int | None = None,
     collisions: bool = False,
-    metric: str = "successes",
+    metric: str = evaluations.SUCCESSES,
 ) -> str:
-    name = {"successes": "any-step success", "final_successes": "final-step success"}.get(metric, metric)
+    name = evaluations.SUCCESS_METRICS.get(metric, metric)
     lines = [
         f"| variant | seeds | reached {threshold:.0%} {name} | Kaplan-Meier median episodes | episodes per seed | final "
         f"{name} (last {final} evals), mean +/- std | per seed | episodes run | wall time per run |"
@@ -74,7 +46,7 @@ def summarize(
     ]
     commands = []
     for variant in sorted(os.listdir(task_folder)):
-        runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", "evaluations.npz")))
+        runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", evaluations.FILE_NAME)))
         if not runs:
             continue
         reached, hit, per_seed, finals, walls, crashes, lengths = [], [], [], [], [], [], []
@@ -82,14 +54,14 @@ def summarize(
             data = load_run(path, max_episodes)
             if metric not in data:
                 continue
-            value, ok = episodes_to(data[metric], data["episodes"], threshold, window)
+            value, ok = episodes_to(data[metric], evaluations.episodes(data), threshold, window)
             reached.append(value)
             hit.append(ok)
             per_seed.append(f"{value:.0f}" if ok else f">{value:.0f}")
             finals.append(float(data[metric][-final:].mean()))
-            lengths.append(int(data["episodes"][-1]))
+            lengths.append(int(evaluations.episodes(data)[-1]))
             if collisions:
-                crashes.append(float(data["training_collisions"][-1]))
+                crashes.append(float(data[evaluations.TRAINING_COLLISIONS][-1]))
             meta_path = os.path.join(os.path.dirname(path), "run.json")
             if os.path.isfile(meta_path) and metric in load_run(path):
                 with open(meta_path) as file:
@@ -120,7 +92,7 @@ def main() -> None:
     parser.add_argument("--final", type=int, default=50)
     parser.add_argument("--collisions", action="store_true", help="add the accumulated training collisions")
     parser.add_argument("--max-episodes", type=int, default=None, help="cut every run at this many training episodes")
-    parser.add_argument("--metric", default="successes", choices=["successes", "final_successes"],
+    parser.add_argument("--metric", default=evaluations.SUCCESSES, choices=list(evaluations.SUCCESS_METRICS),
                         help="any-step success (the paper's) or final-step success")  # fmt: skip
     args = parser.parse_args()
     for folder in args.task_folders:

@@ -531,6 +531,48 @@ class Experiment:
         return model, callback
 
 
+def run_experiment(
+    env_id: str,
+    hyperparams: dict[str, Any],
+    seed: int,
+    n_timesteps: int,
+    log_folder: str,
+    variants: list[str] | tuple[str, ...] = (),
+    eval_freq: int = 20,
+    eval_episodes: int = 10,
+    env_kwargs: dict[str, Any] | None = None,
+    checkpoint_freq: int | None = None,
+    verbose: int = 0,
+) -> str:
+    """
+    Train one run, evaluated as the paper does, into ``log_folder`` (``evaluations.npz``, ``model.zip``,
+    ``config.yml``, ``run.json``); the explicit form of ``sb3-macb train`` that the sweep calls.
+
+    :param env_id: A registered env id.
+    :param hyperparams: The run's hyperparameters (e.g. from :func:`load_hyperparams`).
+    :param seed: The run's seed.
+    :param n_timesteps: Environment steps.
+    :param log_folder: The run's folder (must not hold an experiment yet).
+    :param variants: The zoo variants the hyperparameters came from (recorded).
+    :param eval_freq: Evaluate every this many steps.
+    :param eval_episodes: Episodes per evaluation.
+    :param env_kwargs: Keyword arguments for the env.
+    :param checkpoint_freq: Steps between checkpoints (None: none).
+    :param verbose: 1 prints a line per checkpoint and at the end.
+    :return: ``log_folder``.
+    """
+    config = ExperimentConfig(
+        env_id,
+        [RunConfig(seed=int(seed), folder=log_folder, variants=list(variants), hyperparams=dict(hyperparams))],
+        n_timesteps=int(n_timesteps),
+        eval_freq=eval_freq,
+        eval_episodes=eval_episodes,
+        env_kwargs=dict(env_kwargs or {}),
+    )
+    Experiment(config, log_folder, checkpoint_freq=checkpoint_freq, verbose=verbose).run()
+    return log_folder
+
+
 def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: int = 1) -> Experiment:
     """The experiment stored in ``folder`` (its ``experiment.json``), to resume."""
     path = os.path.join(folder, EXPERIMENT_FILE)

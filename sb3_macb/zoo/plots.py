@@ -14,12 +14,13 @@ average over ``--smooth`` evaluations.
 
 import argparse
 import csv
-import glob
 import json
 import os
 from typing import Any
 
 import numpy as np
+
+from sb3_macb.common import evaluations
 
 # two-sided Student t quantiles for small samples: {confidence: {degrees of freedom: t}}
 _T = {
@@ -38,22 +39,8 @@ def _pyplot() -> Any:
     return plt
 
 
-def load_group(folder: str) -> list[dict[str, np.ndarray]]:
-    """Every ``evaluations.npz`` below ``folder`` (one per seed)."""
-    paths = sorted(glob.glob(os.path.join(folder, "**", "evaluations.npz"), recursive=True))
-    if not paths:
-        raise FileNotFoundError(f"No evaluations.npz below {folder}")
-    return [dict(np.load(path)) for path in paths]
-
-
-def smooth(values: np.ndarray, window: int) -> np.ndarray:
-    """Trailing moving average (the first points average what is there)."""
-    if window <= 1 or len(values) == 0:
-        return values
-    cumsum = np.cumsum(np.insert(values, 0, 0.0))
-    counts = np.minimum(np.arange(1, len(values) + 1), window)
-    starts = np.arange(1, len(values) + 1) - counts
-    return (cumsum[np.arange(1, len(values) + 1)] - cumsum[starts]) / counts
+load_group = evaluations.load_group
+smooth = evaluations.smooth
 
 
 def mean_and_band(curves: list[np.ndarray], confidence: float) -> tuple[np.ndarray, np.ndarray]:
@@ -68,8 +55,7 @@ def mean_and_band(curves: list[np.ndarray], confidence: float) -> tuple[np.ndarr
     return mean, t * stacked.std(axis=0, ddof=1) / np.sqrt(len(curves))
 
 
-def _x_axis(run: dict[str, np.ndarray]) -> np.ndarray:
-    return run["episodes"] if "episodes" in run else run["timesteps"] / 20
+_x_axis = evaluations.episodes
 
 
 def plot_curves(
@@ -82,9 +68,9 @@ def plot_curves(
     """
     plt = _pyplot()
     all_runs = {folder: load_group(folder) for folder in groups}
-    panels = [("successes", "any-step success rate"), ("results", "mean return")]
-    if all("final_successes" in r for runs in all_runs.values() for r in runs):
-        panels.insert(1, ("final_successes", "final-step success rate"))
+    panels = [(evaluations.SUCCESSES, "any-step success rate"), (evaluations.RESULTS, "mean return")]
+    if all(evaluations.FINAL_SUCCESSES in r for runs in all_runs.values() for r in runs):
+        panels.insert(1, (evaluations.FINAL_SUCCESSES, "final-step success rate"))
     fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.5))
     for folder, runs in all_runs.items():
         label = f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)"
@@ -92,7 +78,7 @@ def plot_curves(
         for ax, (key, _) in zip(axes, panels):
             if not all(key in r for r in runs):
                 continue
-            curves = [smooth(r[key].mean(axis=1), window) for r in runs]
+            curves = [smooth(evaluations.rate(r, key), window) for r in runs]
             mean, band = mean_and_band(curves, confidence)
             xs = x[: len(mean)]
             ax.plot(xs, mean, label=label)
@@ -102,14 +88,14 @@ def plot_curves(
             levels = json.load(file)
         styles = {"random_landmark": ":", "landmark_tour": "--", "oracle": "-."}
         for ax, (key, _) in zip(axes, panels):
-            field = {"successes": "any_step", "final_successes": "final_step", "results": "mean_return"}[key]
+            field = {evaluations.SUCCESSES: "any_step", evaluations.FINAL_SUCCESSES: "final_step", evaluations.RESULTS: "mean_return"}[key]
             for name, level in levels.items():
                 ax.axhline(level[field], color="gray", linestyle=styles.get(name, "-"), linewidth=1,
                            label=f"{name.replace('_', ' ')} (scripted)")  # fmt: skip
     for ax, (key, title) in zip(axes, panels):
-        ylabel = "mean return" if key == "results" else "success rate"
+        ylabel = "mean return" if key == evaluations.RESULTS else "success rate"
         ax.set(xlabel="training episodes", ylabel=ylabel, title=f"Evaluation: {title}")
-        if key != "results":
+        if key != evaluations.RESULTS:
             ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper left", fontsize=7)
@@ -124,10 +110,10 @@ def plot_collisions(groups: list[str], output: str, confidence: float = 0.75) ->
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for folder in groups:
-        runs = [r for r in load_group(folder) if "training_collisions" in r]
+        runs = [r for r in load_group(folder) if evaluations.TRAINING_COLLISIONS in r]
         if not runs:
             raise ValueError(f"{folder}: the evaluation files have no training_collisions (MultiAgentEvalCallback writes them)")
-        mean, band = mean_and_band([r["training_collisions"].astype(float) for r in runs], confidence)
+        mean, band = mean_and_band([r[evaluations.TRAINING_COLLISIONS].astype(float) for r in runs], confidence)
         xs = _x_axis(runs[0])[: len(mean)]
         ax.plot(xs, mean, label=f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)")
         ax.fill_between(xs, mean - band, mean + band, alpha=0.25)

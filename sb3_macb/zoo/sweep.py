@@ -43,10 +43,11 @@ import time
 import warnings
 from typing import Any, Callable, TypeVar
 
-import numpy as np
 import optuna
 import yaml
 from optuna.trial import TrialState
+
+from sb3_macb.common import evaluations
 
 T = TypeVar("T")
 
@@ -230,28 +231,27 @@ def repair_queue(study: optuna.Study, points: list[dict[str, Any]], max_attempts
 
 
 def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -> tuple[float, float, str]:
-    """Train one grid point; return (success rate, count-1 fraction, run folder)."""
-    from sb3_macb.zoo.train import train
+    """Train one grid point (:func:`~sb3_macb.zoo.experiment.run_experiment`); return (success rate, count-1, folder)."""
+    from sb3_macb.zoo.experiment import load_hyperparams, run_experiment
 
+    variants = [v for v in str(config.get("variant") or "").split(",") if v]
     overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
-    argv = [
-        "--env", config["env"], "-f", run_folder, "--seed", str(params["seed"]), "--no-progress", "--verbose", "0",
-        "--eval-freq", str(config.get("eval_freq", 20)), "--eval-episodes", str(config.get("eval_episodes", 10)),
-    ]  # fmt: skip
-    if "n_timesteps" in config:
-        argv += ["-n", str(int(config["n_timesteps"]))]
-    if config.get("variant"):
-        argv += ["--variant", str(config["variant"])]
-    if config.get("conf_file"):
-        argv += ["-conf", config["conf_file"]]
-    save_path = train(argv, overrides=overrides)
-    assert save_path is not None
-    data = np.load(os.path.join(save_path, "evaluations.npz"))
+    hyperparams = load_hyperparams(config["env"], config.get("conf_file"), variants, overrides)
+    n_timesteps = int(config.get("n_timesteps") or hyperparams.get("n_timesteps", 800_000))
+    run_experiment(
+        config["env"], hyperparams, int(params["seed"]), n_timesteps, run_folder, variants,
+        eval_freq=int(config.get("eval_freq", 20)), eval_episodes=int(config.get("eval_episodes", 10)),
+    )  # fmt: skip
+    return _trial_result(config, run_folder)
+
+
+def _trial_result(config: dict[str, Any], run_folder: str) -> tuple[float, float, str]:
+    """(success rate over the last ``final_evals`` evaluations, last count-1 fraction, folder) of a finished run."""
+    run = evaluations.load(run_folder)
     n_final = int(config.get("final_evals", 10))
-    successes = data["successes"] if "successes" in data.files else np.zeros((1, 1))
-    success_rate = float(np.mean(successes[-n_final:]))
-    count1 = float(data["count1_fraction"][-1]) if "count1_fraction" in data.files else float("nan")
-    return success_rate, count1, save_path
+    success_rate = evaluations.final_level(run, window=n_final) if evaluations.SUCCESSES in run else 0.0
+    count1 = float(run[evaluations.COUNT1_FRACTION][-1]) if evaluations.COUNT1_FRACTION in run else float("nan")
+    return success_rate, count1, run_folder
 
 
 PACKABLE_PREFIXES = ("exploration.", "exploration", "noise_std")
@@ -289,13 +289,7 @@ def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], l
         eval_episodes=int(config.get("eval_episodes", 10)), env_kwargs=dict(config.get("env_kwargs") or {}),
     )  # fmt: skip
     Experiment(experiment_config, os.path.join(log_folder, f"pack_{points[0][0]}"), verbose=0).run()
-    n_final = int(config.get("final_evals", 10))
-    results = []
-    for run in runs:
-        data = np.load(os.path.join(run.folder, "evaluations.npz"))
-        success_rate = float(np.mean(data["successes"][-n_final:])) if "successes" in data.files else 0.0
-        results.append((success_rate, float(data["count1_fraction"][-1]), run.folder))
-    return results
+    return [_trial_result(config, run.folder) for run in runs]
 
 
 class _Heartbeats:
@@ -377,8 +371,8 @@ def work(
     :param log_folder: Where the trials' run folders go (``LOG/NAME/trial_N``).
     :param heartbeat: Heartbeat interval in seconds; a trial silent for 3 intervals is retried elsewhere.
     :param poll: Seconds between looks at the study while other workers' trials run.
-    :param pack: Claim up to this many waiting grid points at once and train them together in one process
-        (:mod:`sb3_macb.zoo.experiment`); 0: one point at a time through rl_zoo3's train.
+    :param pack: Claim up to this many waiting grid points at once and train them together in one process;
+        0: one point at a time. Either way through :mod:`sb3_macb.zoo.experiment`.
     :param max_attempts: A point that fails this many times is given up and reported.
     :param enqueue_wait: Seconds to wait for the worker that queues the grid before repairing the queue.
     :return: 0 when every grid point finished; 1 when some failed ``max_attempts`` times or are missing

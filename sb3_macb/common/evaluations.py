@@ -1,0 +1,123 @@
+"""
+The ``evaluations.npz`` format of sb3_macb, in one place: what the evaluation callback writes and what the plots,
+the sweep and the result scripts read.
+
+One entry per evaluation in every array: SB3's ``timesteps`` (per run), ``results`` (returns, one per episode) and
+``ep_lengths``; then ``successes`` (any-step success per episode, the paper's metric), ``final_successes`` (the
+success condition at the episode's last step), ``episodes`` (training episodes completed), ``agent_returns``,
+``collisions``, ``num_codes`` and ``count1_fraction`` (MACB's table), ``training_collisions`` (accumulated).
+"""
+
+import glob
+import os
+from typing import Any
+
+import numpy as np
+
+from sb3_macb.common.atomic import atomic_write
+
+FILE_NAME = "evaluations.npz"
+TIMESTEPS, RESULTS, EP_LENGTHS = "timesteps", "results", "ep_lengths"
+SUCCESSES, FINAL_SUCCESSES = "successes", "final_successes"
+EPISODES, AGENT_RETURNS, COLLISIONS = "episodes", "agent_returns", "collisions"
+NUM_CODES, COUNT1_FRACTION, TRAINING_COLLISIONS = "num_codes", "count1_fraction", "training_collisions"
+FIELDS = (
+    TIMESTEPS, RESULTS, EP_LENGTHS, SUCCESSES, FINAL_SUCCESSES, EPISODES, AGENT_RETURNS, COLLISIONS, NUM_CODES,
+    COUNT1_FRACTION, TRAINING_COLLISIONS,
+)  # fmt: skip
+SUCCESS_METRICS = {SUCCESSES: "any-step success", FINAL_SUCCESSES: "final-step success"}
+
+
+def save(path: str, record: dict[str, list]) -> None:
+    """
+    Write one run's records: compressed (``np.load`` reads it like SB3's file, at a fraction of the size for long
+    runs) and atomically (a temporary file renamed over ``path``). ``successes`` and ``final_successes`` are written
+    only where every evaluation reported them.
+
+    :param path: The file.
+    :param record: Lists keyed by :data:`FIELDS`, one entry per evaluation.
+    """
+    arrays: dict[str, Any] = {TIMESTEPS: record[TIMESTEPS], RESULTS: record[RESULTS], EP_LENGTHS: record[EP_LENGTHS]}
+    for name in (SUCCESSES, FINAL_SUCCESSES):
+        if all(record[name]):
+            arrays[name] = record[name]
+    arrays.update({name: record[name] for name in (EPISODES, COLLISIONS, NUM_CODES, COUNT1_FRACTION, TRAINING_COLLISIONS)})
+    arrays[AGENT_RETURNS] = np.array(record[AGENT_RETURNS])
+    with atomic_write(path) as file:
+        np.savez_compressed(file, **arrays)
+
+
+def load(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray]:
+    """
+    One run's arrays (a file, or a folder holding ``evaluations.npz``), cut at ``max_episodes`` training episodes if
+    given (a run's first N episodes are the run it would have been with that budget).
+    """
+    if os.path.isdir(path):
+        path = os.path.join(path, FILE_NAME)
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    if max_episodes is not None:
+        keep = episodes(arrays) <= max_episodes
+        arrays = {name: (a[keep] if a.ndim and len(a) == len(keep) else a) for name, a in arrays.items()}
+    return arrays
+
+
+def load_group(folder: str, max_episodes: int | None = None) -> list[dict[str, np.ndarray]]:
+    """Every run below ``folder`` (one ``evaluations.npz`` per seed, at any depth), in path order."""
+    paths = sorted(glob.glob(os.path.join(folder, "**", FILE_NAME), recursive=True))
+    if not paths:
+        raise FileNotFoundError(f"No {FILE_NAME} below {folder}")
+    return [load(path, max_episodes) for path in paths]
+
+
+def episodes(run: dict[str, np.ndarray]) -> np.ndarray:
+    """Training episodes completed at each evaluation (from the step counts for files without them: 20 steps each)."""
+    return run[EPISODES] if EPISODES in run else run[TIMESTEPS] / 20
+
+
+def rate(run: dict[str, np.ndarray], metric: str = SUCCESSES) -> np.ndarray:
+    """The success rate of each evaluation (mean over its episodes)."""
+    return run[metric].mean(axis=1)
+
+
+def final_level(run: dict[str, np.ndarray], metric: str = SUCCESSES, window: int = 200) -> float:
+    """The mean success rate over the last ``window`` evaluations."""
+    return float(run[metric][-window:].mean())
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average (the first points average what is there)."""
+    if window <= 1 or len(values) == 0:
+        return values
+    cumsum = np.cumsum(np.insert(values, 0, 0.0))
+    counts = np.minimum(np.arange(1, len(values) + 1), window)
+    starts = np.arange(1, len(values) + 1) - counts
+    return (cumsum[np.arange(1, len(values) + 1)] - cumsum[starts]) / counts
+
+
+def episodes_to(successes: np.ndarray, run_episodes: np.ndarray, threshold: float, window: int) -> tuple[float, bool]:
+    """
+    Training episodes until the success rate, averaged over ``window`` consecutive evaluations, first reaches
+    ``threshold``; ``(last episode, False)`` if it never does (the run is censored there).
+    """
+    moving = np.convolve(successes.mean(axis=1), np.ones(window) / window, mode="valid")
+    hits = np.flatnonzero(moving >= threshold)
+    if len(hits):
+        return float(run_episodes[hits[0] + window - 1]), True
+    return float(run_episodes[-1]), False
+
+
+def km_median(times: list[float], reached: list[bool]) -> float | None:
+    """
+    Kaplan-Meier median of the episodes to a threshold: runs that did not reach it are censored at their last
+    episode. None when the estimated survival never falls to one half (fewer than half of the runs reached it).
+    """
+    order = np.argsort(times, kind="stable")
+    at_risk, survival = len(times), 1.0
+    for i in order:
+        if reached[i]:
+            survival *= 1.0 - 1.0 / at_risk
+            if survival <= 0.5:
+                return float(times[i])
+        at_risk -= 1
+    return None
