@@ -361,6 +361,7 @@ def work(
     pack: int = 0,
     max_attempts: int = 3,
     enqueue_wait: float = 60.0,
+    num_threads: int = 1,
 ) -> int:
     """
     Join the sweep as a worker and run grid points until none is waiting or running.
@@ -375,9 +376,13 @@ def work(
         0: one point at a time. Either way through :mod:`sb3_macb.zoo.experiment`.
     :param max_attempts: A point that fails this many times is given up and reported.
     :param enqueue_wait: Seconds to wait for the worker that queues the grid before repairing the queue.
+    :param num_threads: Torch threads of this worker (one per worker, as many workers as cores, is fastest).
     :return: 0 when every grid point finished; 1 when some failed ``max_attempts`` times or are missing
         (``results.csv`` lists them with their status and error).
     """
+    import torch as th
+
+    th.set_num_threads(num_threads)
     config = load_config(config_path)
     if pack > 0:
         _check_packable(config)
@@ -466,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-f", "--log-folder", default="logs/sweeps")
     parser.add_argument("--heartbeat", type=int, default=30, help="seconds between a worker's heartbeats")
     parser.add_argument("--max-attempts", type=int, default=3, help="tries of a failing point before it is reported")
+    parser.add_argument("--num-threads", type=int, default=1, help="torch threads of this worker")
     parser.add_argument("--pack", type=int, default=0, metavar="K",
                         help="claim up to K queued grid points at once and train them together in one process")  # fmt: skip
     args = parser.parse_args(argv)
@@ -474,4 +480,4 @@ def main(argv: list[str] | None = None) -> int:
     os.makedirs(args.log_folder, exist_ok=True)
     storage = args.storage or f"sqlite:///{os.path.abspath(os.path.join(args.log_folder, 'sweeps.db'))}"
     return work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack,
-                max_attempts=args.max_attempts)  # fmt: skip
+                max_attempts=args.max_attempts, num_threads=args.num_threads)  # fmt: skip
