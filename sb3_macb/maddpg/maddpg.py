@@ -152,8 +152,7 @@ class MADDPG(TD3):
         self.explorations: list[MACB | None] = [MACB.from_config(e) for e in per_run]
         if isinstance(action_noise, (list, tuple)) and len(action_noise) != n_runs:
             raise ValueError(f"action_noise: expected one per run ({n_runs}), got {len(action_noise)}")
-        # MACB's settings travel in the saved data; its matrices and count tables are saved like a state dict
-        self.exploration_config: dict[str, Any] | list[dict[str, Any] | None] | None = None
+        # (the MACB objects' settings travel in the saved data; their matrices and count tables as a state dict)
         self._run_rngs: list[np.random.Generator] | None = None
         run_noises = action_noise if isinstance(action_noise, (list, tuple)) else None
         if run_noises is not None:
@@ -315,9 +314,6 @@ class MADDPG(TD3):
         for exploration, seed in zip(self.explorations, seeds):
             if exploration is not None:
                 exploration.setup(layout, seed=seed)
-        self.exploration_config = [e.config if e is not None else None for e in self.explorations]
-        if self.n_runs == 1:
-            self.exploration_config = self.exploration_config[0]
         if self._run_rngs is None:  # (a loaded model brings its generators' states)
             self._run_rngs = [np.random.default_rng(seed) for seed in seeds]
         if any(e is not None for e in self.explorations):
