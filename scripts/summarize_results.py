@@ -49,7 +49,7 @@ def summarize(
         runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", evaluations.FILE_NAME)))
         if not runs:
             continue
-        reached, hit, per_seed, finals, walls, crashes, lengths = [], [], [], [], [], [], []
+        reached, hit, per_seed, finals, walls, crashes, lengths, packs = [], [], [], [], [], [], [], []
         for path in runs:
             data = load_run(path, max_episodes)
             if metric not in data:
@@ -67,10 +67,13 @@ def summarize(
                 with open(meta_path) as file:
                     meta = json.load(file)
                 walls.append(meta["wall_time_s"])
+                packs.append(int(meta.get("pack_size", 1)))
                 commands.append(meta["command"])
         if not reached:
             continue
         wall = f"{np.mean(walls) / 60:.1f} min" if walls else "-"
+        if packs and max(packs) > 1:  # the runs of a pack share one process: its wall time is theirs together
+            wall += f" (a pack of {max(packs)})"
         median = km_median(reached, hit)
         lines.append(
             f"| {variant} | {len(reached)} | {sum(hit)} of {len(hit)} | {'not reached' if median is None else f'{median:.0f}'} | "
