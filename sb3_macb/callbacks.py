@@ -92,9 +92,6 @@ class StopTrainingOnNoSuccessImprovement(_SuccessRateStop):
         return stop
 
 
-RECORD_FIELDS = evaluations.FIELDS  # (kept for code that imported it from here)
-
-
 def make_eval_vec_env(
     env_id: str, n_eval_episodes: int, seeds: list[int | None], env_kwargs: dict[str, Any] | None = None
 ) -> VecEnv:
@@ -450,16 +447,11 @@ class MultiAgentEvalCallback(EvalCallback):
         for run, record in enumerate(self.records):
             path = self._run_file(run)
             if path is not None and record["timesteps"]:
-                save_evaluations_file(path, record)
+                evaluations.save(path, record)
 
     def _on_training_end(self) -> None:
         self.save_evaluations()
         super()._on_training_end()
-
-
-def save_evaluations_file(path: str, record: dict[str, list]) -> None:
-    """Write one run's records as ``evaluations.npz`` (see :func:`sb3_macb.common.evaluations.save`)."""
-    evaluations.save(path, record)
 
 
 def _final_success(info: dict[str, Any]) -> bool | None:
