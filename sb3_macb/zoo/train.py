@@ -331,7 +331,7 @@ def _checkpointed_train(argv: list[str]) -> str:
         eval_freq=args.eval_freq,
         eval_episodes=args.eval_episodes,
         env_kwargs=pairs(args.env_kwargs, "--env-kwargs"),
-        command="sb3-macb train " + " ".join(shlex.quote(a) for a in argv if a != "--resume" and a != args.resume),
+        command="sb3-macb train " + " ".join(shlex.quote(a) for a in argv),
     )
     th.set_num_threads(args.num_threads)
     if args.verbose:
@@ -364,7 +364,7 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     if any(a.split("=")[0] in ("--checkpoint-freq", "--resume") for a in argv):
         if overrides:
             argv = [*argv, "-params", *(f"{k}:{v!r}" for k, v in overrides.items())]
-        return _checkpointed_train([a for part in argv for a in (part.split("=", 1) if part.startswith("--") and "=" in part else [part])])
+        return _checkpointed_train(argv)
     if any(a in ("-h", "--help") for a in argv):
         print(TRAIN_HELP)
     parser = argparse.ArgumentParser(add_help=False)
