@@ -92,6 +92,11 @@ class StopTrainingOnNoSuccessImprovement(_SuccessRateStop):
         return stop
 
 
+def _counters(callback: BaseCallback) -> dict[str, Any]:
+    """A callback's own counters (numbers and booleans set in its ``__init__`` or later), for a checkpoint."""
+    return {k: v for k, v in vars(callback).items() if isinstance(v, (bool, int, float, np.number)) and not k.startswith("_")}
+
+
 def make_eval_vec_env(
     env_id: str, n_eval_episodes: int, seeds: list[int | None], env_kwargs: dict[str, Any] | None = None
 ) -> VecEnv:
@@ -277,7 +282,13 @@ class MultiAgentEvalCallback(EvalCallback):
             "run_training_collisions": self.run_training_collisions,
             "best": (self.best_success_rate, self.best_mean_reward),
             "last": (self.last_success_rate, self.last_mean_reward),
+            "after_eval": [_counters(c) for c in self._after_eval_callbacks()],
         }
+
+    def _after_eval_callbacks(self) -> list[BaseCallback]:
+        if self.callback is None:
+            return []
+        return list(self.callback.callbacks) if isinstance(self.callback, CallbackList) else [self.callback]
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Continue from what :meth:`get_state` returned."""
@@ -290,6 +301,11 @@ class MultiAgentEvalCallback(EvalCallback):
         self.run_training_collisions = state["run_training_collisions"]
         self.best_success_rate, self.best_mean_reward = state["best"]
         self.last_success_rate, self.last_mean_reward = state["last"]
+        saved, mine = state.get("after_eval", []), self._after_eval_callbacks()
+        if len(saved) != len(mine):
+            raise ValueError(f"the checkpoint has {len(saved)} callback(s) after evaluation, this run {len(mine)}")
+        for callback, counters in zip(mine, saved):
+            callback.__dict__.update(counters)
 
     # --- per step of an evaluation (evaluate_policy's callback) ----------------------------------------------------
 

@@ -4,8 +4,8 @@ import sys
 
 USAGE = """usage: sb3-macb {train,sweep,plot} ...
 
-  train   rl_zoo3's train with MADDPG and the paper's tasks (sb3-macb train -h for rl_zoo3's options, plus --variant);
-          with --checkpoint-freq N it checkpoints every N steps, and --resume RUN_FOLDER continues such a run
+  train   one run with the zoo's YAML, evaluated as the paper does (sb3-macb train -h: rl_zoo3's option names plus
+          --variant, --unsafe-eval); --checkpoint-freq N checkpoints, --resume RUN_FOLDER continues; --optimize searches
   sweep   run a grid of settings x seeds as trials of an Optuna study, shared by any number of workers
   plot    learning curves, collisions, the beta x k table and heatmap, the SimHash grouping figure
 """

@@ -219,7 +219,7 @@ def test_train_command_checkpoints_and_resumes(tmp_path, capsys):
     common = ["--env", COMM, "-n", "300", "--seed", "2", "-f", str(tmp_path), "-c", load_hyperparams.__globals__["DEFAULT_CONFIG"],
               "--variant", "maddpg,fast", "-params", "batch_size:16", "policy_kwargs:dict(net_arch=[16])"]  # fmt: skip
     assert main(["train", *common, "--checkpoint-freq", "100", "--verbose", "0"]) == 0
-    folder = tmp_path / "maddpg" / "CommunicativeNavigation-v0_1"
+    folder = tmp_path / "maddpg" / "sb3_macb-CommunicativeNavigation-v0_1"
     assert json.loads((folder / "run.json").read_text())["complete"]
     assert len(np.load(folder / "evaluations.npz")["timesteps"]) == 15
     assert main(["train", *common, f"--resume={folder}"]) == 0  # finished: nothing to do
@@ -228,3 +228,17 @@ def test_train_command_checkpoints_and_resumes(tmp_path, capsys):
     assert "differ from those in" in capsys.readouterr().err
     assert main(["train", *common, "-params", "batch_size:__import__('os')", "--checkpoint-freq", "100"]) == 2
     assert "not allowed" in capsys.readouterr().err
+
+
+def test_early_stopping_counters_travel_in_the_checkpoint():
+    from sb3_macb.callbacks import MultiAgentEvalCallback, StopTrainingOnNoSuccessImprovement
+
+    def callback():
+        stop = StopTrainingOnNoSuccessImprovement(5)
+        return MultiAgentEvalCallback(COMM, n_eval_episodes=2, callback_after_eval=stop, verbose=0, warn=False), stop
+
+    first, stop = callback()
+    stop.n_evals, stop.no_improvement_evals, stop.best_success_rate = 7, 3, 0.4
+    second, other = callback()
+    second.set_state(first.get_state())
+    assert (other.n_evals, other.no_improvement_evals, other.best_success_rate) == (7, 3, 0.4)

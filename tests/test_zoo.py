@@ -40,20 +40,20 @@ def test_yaml_holds_the_papers_settings():
 def test_tiny_train_run_from_yaml(tmp_path):
     folder = run_train(tmp_path, "-n", "100", "--variant", "fast", "-params", "exploration.beta:0.3")
     assert folder is not None and Path(folder).parent.name == "maddpg"
-    model = MADDPG.load(Path(folder) / f"{COMM.replace('/', '-')}.zip")
+    model = MADDPG.load(Path(folder) / "model.zip")
     assert model.num_timesteps == 100
     assert model.exploration.beta == 0.3 and model.exploration.k == 512  # dotted override on the YAML's dict
     assert model.actor.mu.weights[1].shape[1:] == (64, 64)  # the fast variant
     assert model.batch_size == 100 and model.lr_schedule(1) == 0.001
     data = np.load(Path(folder) / "evaluations.npz")
     assert list(data["timesteps"]) == [50, 100] and "successes" in data.files
-    saved = yaml.safe_load(open(Path(folder) / COMM.replace("/", "-") / "config.yml"))
+    saved = yaml.safe_load(open(Path(folder) / "config.yml"))
     assert saved is not None
 
 
 def test_variants_plain_maddpg_and_ddpg(tmp_path):
     folder = run_train(tmp_path, "-n", "60", "--variant", "ddpg,fast")
-    model = MADDPG.load(Path(folder) / f"{COMM.replace('/', '-')}.zip")
+    model = MADDPG.load(Path(folder) / "model.zip")
     assert model.exploration is None and model.centralized_critic is False
 
 
@@ -66,7 +66,7 @@ def test_early_stop_from_yaml_callback(tmp_path):
     folder = run_train(tmp_path, "-n", "1000", "-conf", str(path), "--env-kwargs", "success_radius:100")
     data = np.load(Path(folder) / "evaluations.npz")
     assert list(data["timesteps"]) == [50]  # stopped after the first evaluation
-    model = MADDPG.load(Path(folder) / f"{COMM.replace('/', '-')}.zip")
+    model = MADDPG.load(Path(folder) / "model.zip")
     assert model.num_timesteps == 50
 
 
@@ -308,7 +308,7 @@ def test_hyperparameter_strings_cannot_run_code(tmp_path):
     # asked for explicitly, strings are Python again
     folder = train([*env, "--verbose", "0", "--unsafe-eval", "-params", "policy_kwargs:dict(net_arch=[int('8')])",
                     "learning_starts:10", "batch_size:4"])  # fmt: skip
-    assert MADDPG.load(os.path.join(folder, "sb3_macb-CommunicativeNavigation-v0.zip")).policy.net_arch == [8]
+    assert MADDPG.load(os.path.join(folder, "model.zip")).policy.net_arch == [8]
 
 
 def test_policy_alone_saves_and_loads(tmp_path):
@@ -327,10 +327,10 @@ def test_console_is_quiet_and_shows_the_effective_hyperparameters(tmp_path, caps
                     "--variant", "maddpg,fast", "-params", "batch_size:16"])  # fmt: skip
     out = capsys.readouterr().out
     assert out.count("rollout/ ") <= 2 and out.count("eval/ ") <= 2  # not a table every evaluation or 4 episodes
-    assert "variants: maddpg, fast" in out and "'batch_size': 16" in out and "'net_arch': [64, 64]" in out
+    assert "variants: maddpg, fast" in out and "'batch_size': 16" in out and "net_arch=[64, 64]" in out
     assert "Default hyperparameters" not in out  # rl_zoo3's print of the file's entry, before variants
     assert out.count("Eval num_timesteps=") == 1  # one summary line per 100 evaluations
-    config = yaml.safe_load(Path(folder, "sb3_macb-CommunicativeNavigation-v0", "config.yml").read_text())
+    config = yaml.safe_load(Path(folder, "config.yml").read_text())
     assert dict(config)["n_timesteps"] == 2100
 
 
@@ -378,3 +378,30 @@ def test_a_storage_that_never_answers_fails_fast_with_a_clear_error():
         make_storage(f"postgresql://user:secret@127.0.0.1:{port}/db", 30, connect_timeout=1, deadline=3)
     assert time.time() - start < 30 and accepted  # it connected, then gave up instead of hanging
     server.close()
+
+
+def test_train_help_lists_the_packages_options_and_optimize_runs_without_argv(tmp_path, capsys):
+    from sb3_macb.zoo.train import make_parser
+
+    text = make_parser().format_help()
+    for option in ("--variant", "--no-progress", "--unsafe-eval", "--checkpoint-freq", "--resume", "--optimize"):
+        assert option in text
+    argv = list(sys.argv)
+    train(["--env", COMM, "-n", "60", "-f", str(tmp_path), "--seed", "0", "--variant", "fast", "--optimize", "--n-trials",
+           "2", "--n-startup-trials", "2", "--n-evaluations", "1", "--eval-episodes", "2", "--eval-freq", "30",
+           "-params", "learning_starts:10", "--verbose", "0", "--no-progress"])  # fmt: skip
+    assert sys.argv == argv  # the command line of the process is left alone
+    reports = list((tmp_path / "maddpg").glob("report_*.csv"))
+    assert len(reports) == 1 and len(reports[0].read_text().splitlines()) == 3  # header + 2 trials
+
+
+def test_rl_zoo3_keys_the_runs_cannot_restore_are_refused_before_anything_is_written(tmp_path):
+    from sb3_macb.zoo.experiment import ExperimentError
+
+    for params in (["normalize:True"], ["env_wrapper:'gymnasium.wrappers.ClipAction'"]):
+        with pytest.raises(ExperimentError, match="do not support"):
+            run_train(tmp_path, "-n", "40", "-params", *params)
+    assert not (tmp_path / "logs").exists()
+    folder = run_train(tmp_path, "-n", "100", "--variant", "fast", "-params", "n_envs:2", "learning_starts:10")
+    assert list(np.load(Path(folder) / "evaluations.npz")["timesteps"]) == [50, 100]  # every 50 steps over both envs
+    assert MADDPG.load(Path(folder) / "model.zip").n_envs == 2

@@ -30,13 +30,13 @@ from typing import Any
 import numpy as np
 import torch as th
 import yaml
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from torch import nn
 
 import sb3_macb
 import sb3_macb.envs  # noqa: F401  (registers the task ids)
-from sb3_macb.callbacks import MultiAgentEvalCallback, make_eval_vec_env
+from sb3_macb.callbacks import MultiAgentEvalCallback, _SuccessRateStop, make_eval_vec_env
 from sb3_macb.common.atomic import atomic_write
 from sb3_macb.common.snapshot import restore, snapshot
 from sb3_macb.envs.vec_tasks import make_task_vec_env
@@ -48,10 +48,13 @@ CHECKPOINT_DIR = "checkpoint"
 
 # Hyperparameters that may differ between the runs of one pack; everything else must be equal
 PACKABLE = ("exploration", "noise_std")
-# rl_zoo3 keys the experiment runner does not support (they change the env or the training loop)
-UNSUPPORTED = (
-    "normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback", "normalize_kwargs", "n_envs", "monitor_kwargs",
-)  # fmt: skip
+# rl_zoo3 keys the experiment runner does not support (they wrap the env in ways a checkpoint cannot restore exactly)
+UNSUPPORTED = ("normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "normalize_kwargs", "monitor_kwargs")
+# Hyperparameter strings rl_zoo3 evaluates as Python (parsed here by :func:`safe_eval`, or by ``eval`` when asked)
+EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
+# Modules whose classes a YAML ``callback:`` entry may name without ``unsafe_eval``
+SAFE_MODULES = ("sb3_macb.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.", "gymnasium.wrappers.", "supersuit.")
+UNSAFE_HINT = "pass --unsafe-eval to evaluate hyperparameter strings as Python (only for files you trust)"
 
 
 class ExperimentError(ValueError):
@@ -158,20 +161,101 @@ def _action_noise(hyperparams: dict[str, Any], action_dim: int) -> ActionNoise |
     raise ExperimentError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {kind!r}")
 
 
-def model_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
-    """MADDPG's keyword arguments from a run's hyperparameters (strings parsed safely, zoo keys removed)."""
-    bad = [key for key in UNSUPPORTED if hyperparams.get(key) not in (None, False, 1, {}, [])]
+def evaluate_string(text: str, where: str, unsafe_eval: bool = False) -> Any:
+    """
+    A hyperparameter string's value: :func:`safe_eval`, or Python's ``eval`` (as rl_zoo3 does) with ``unsafe_eval``.
+
+    :param text: The string.
+    :param where: What it is, for error messages.
+    :param unsafe_eval: Evaluate it as Python (only for files the user trusts and asked for explicitly).
+    """
+    if not unsafe_eval:
+        try:
+            return safe_eval(text, where)
+        except ExperimentError as exc:
+            raise ExperimentError(f"{exc} ({UNSAFE_HINT})") from None
+    import stable_baselines3 as sb3
+
+    namespace = {"nn": nn, "th": th, "torch": th, "np": np, "sb3": sb3}
+    try:
+        return eval(text, namespace)  # noqa: S307 (the user asked for it with --unsafe-eval)
+    except Exception as exc:  # noqa: BLE001
+        raise ExperimentError(f"{where}: evaluating {text!r} failed: {type(exc).__name__}: {exc}") from None
+
+
+def _callback_entries(value: Any) -> list[tuple[str, dict[str, Any]]]:
+    """The (dotted class name, kwargs) pairs of a YAML ``callback:`` entry (a name, a {name: kwargs} dict, or a list)."""
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return [(value, {})]
+    if isinstance(value, dict):
+        return [(str(name), dict(kwargs or {})) for name, kwargs in value.items()]
+    if isinstance(value, list):
+        return [entry for item in value for entry in _callback_entries(item)]
+    raise ExperimentError(f"'callback' must be a class name, a {{name: kwargs}} dict or a list of them, got {value!r}")
+
+
+def make_callbacks(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> list[BaseCallback]:
+    """
+    The callbacks a run's ``callback:`` hyperparameter names (rl_zoo3's format), built. Classes outside
+    :data:`SAFE_MODULES` are refused unless ``unsafe_eval``; the error names the key and says how to opt in.
+
+    :param hyperparams: The run's hyperparameters.
+    :param unsafe_eval: Allow classes from any module.
+    """
+    import importlib
+
+    callbacks = []
+    for name, kwargs in _callback_entries(hyperparams.get("callback")):
+        if not unsafe_eval and not name.startswith(SAFE_MODULES):
+            raise ExperimentError(
+                f"'callback' names {name!r}, outside the trusted libraries {list(SAFE_MODULES)}: building it would "
+                f"import and call it. {UNSAFE_HINT}"
+            )
+        module_name, _, class_name = name.rpartition(".")
+        try:
+            cls = getattr(importlib.import_module(module_name), class_name)
+        except (ImportError, AttributeError, ValueError):
+            raise ExperimentError(f"'callback' names {name!r}, which cannot be imported") from None
+        if not (isinstance(cls, type) and issubclass(cls, BaseCallback)):
+            raise ExperimentError(f"'callback' names {name!r}, which is not an SB3 callback class")
+        try:
+            callbacks.append(cls(**kwargs))
+        except (TypeError, ValueError) as exc:
+            raise ExperimentError(f"'callback' {name}: {exc}") from None
+    return callbacks
+
+
+def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict[str, Any]:
+    """
+    MADDPG's keyword arguments from a run's hyperparameters (strings parsed safely, zoo keys removed).
+
+    :param hyperparams: The run's hyperparameters.
+    :param unsafe_eval: Evaluate strings as Python, as rl_zoo3 does.
+    """
+    def used(key: str) -> bool:  # normalize: false, frame_stack: 1 and empty wrappers change nothing
+        value = hyperparams.get(key)
+        return not (value is None or value is False or value == {} or value == [] or (key == "frame_stack" and type(value) is int and value == 1))
+
+    bad = [key for key in UNSUPPORTED if used(key)]
     if bad:
-        raise ExperimentError(f"{bad} are rl_zoo3 options that checkpointed/packed runs do not support")
-    kwargs = {k: v for k, v in hyperparams.items() if k not in ("n_timesteps", "policy", "noise_type", "noise_std", *UNSUPPORTED)}
+        raise ExperimentError(
+            f"{bad}: rl_zoo3 options that sb3_macb's runs do not support (they wrap the env in ways a checkpoint cannot "
+            f"restore); remove them (from the YAML entry or -params)"
+        )
+    dropped = ("n_timesteps", "policy", "noise_type", "noise_std", "callback", "n_envs", *UNSUPPORTED)
+    kwargs = {k: v for k, v in hyperparams.items() if k not in dropped}
     for key, value in list(kwargs.items()):
         if isinstance(value, str) and key not in ("device",):
             if key == "learning_rate" and value.startswith("lin_"):
                 from rl_zoo3.utils import linear_schedule
 
                 kwargs[key] = linear_schedule(float(value[4:]))
+            elif key == "replay_buffer_class" and not unsafe_eval:
+                raise ExperimentError(f"hyperparameter '{key}' names a class as a string, which would be evaluated; {UNSAFE_HINT}")
             else:
-                kwargs[key] = safe_eval(value, f"hyperparameter '{key}'")
+                kwargs[key] = evaluate_string(value, f"hyperparameter '{key}'", unsafe_eval)
     if isinstance(kwargs.get("train_freq"), list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     return kwargs
@@ -209,6 +293,8 @@ class ExperimentConfig:
     :param eval_episodes: Episodes per evaluation (per run).
     :param env_kwargs: Keyword arguments for the env.
     :param command: The command line that started it (recorded in each run's ``run.json``).
+    :param unsafe_eval: Evaluate hyperparameter strings as Python and allow callbacks from any module (only for
+        files the user trusts and asked for explicitly); by default they are parsed by :func:`safe_eval`.
     """
 
     env_id: str
@@ -218,6 +304,7 @@ class ExperimentConfig:
     eval_episodes: int = 10
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     command: str = ""
+    unsafe_eval: bool = False
 
     def __post_init__(self) -> None:
         self.runs = [r if isinstance(r, RunConfig) else RunConfig(**r) for r in self.runs]
@@ -229,6 +316,13 @@ class ExperimentConfig:
                 self.env_kwargs = {**yaml_env_kwargs, **self.env_kwargs}
         if self.n_timesteps < 1 or self.eval_freq < 0 or self.eval_episodes < 1:
             raise ExperimentError("n_timesteps and eval_episodes must be >= 1 and eval_freq >= 0")
+        for run in self.runs:  # bad settings are refused here, before anything is written or run
+            model_kwargs(run.hyperparams, self.unsafe_eval)
+            make_callbacks(run.hyperparams, self.unsafe_eval)
+        if len(self.runs) > 1:
+            for key in ("callback", "n_envs"):
+                if any(r.hyperparams.get(key) not in (None, 1, []) for r in self.runs):
+                    raise ExperimentError(f"'{key}' is supported for single runs, not for packs of {len(self.runs)} runs")
         common = [_pack_key(r.hyperparams) for r in self.runs]
         if any(key != common[0] for key in common):
             first = self.runs[0].hyperparams
@@ -243,6 +337,8 @@ class ExperimentConfig:
         """The settings that must not change on resume (everything but the command line)."""
         data = json.loads(json.dumps(asdict(self), default=repr))
         data.pop("command")
+        if not data["unsafe_eval"]:
+            data.pop("unsafe_eval")  # as checkpoints written before the option existed have it
         return data
 
 
@@ -277,10 +373,18 @@ class Experiment:
     :param keep_checkpoint: Keep the last checkpoint when the experiment ends (by default it is deleted: the replay
         buffer makes it large).
     :param verbose: 1 prints a line per checkpoint and at the end.
+    :param progress_bar: Show SB3's progress bar.
+    :param tensorboard_log: Folder for TensorBoard logs (None: none).
+    :param log_interval: Print SB3's training table every this many training episodes (None: never).
+    :param eval_log_freq: Print an evaluation summary every this many evaluations (1: SB3's table after each;
+        None: nothing).
+    :param save_best: Keep ``best_model.zip`` (by success rate) in the run's folder (single runs only).
     """
 
     def __init__(self, config: ExperimentConfig, folder: str, checkpoint_freq: int | None = None,
-                 keep_checkpoint: bool = False, verbose: int = 1):  # fmt: skip
+                 keep_checkpoint: bool = False, verbose: int = 1, progress_bar: bool = False,
+                 tensorboard_log: str | None = None, log_interval: int | None = None, eval_log_freq: int | None = None,
+                 save_best: bool = False):  # fmt: skip
         if checkpoint_freq is not None and checkpoint_freq < 1:
             raise ExperimentError(f"checkpoint_freq must be >= 1 step, got {checkpoint_freq}")
         self.config = config
@@ -288,6 +392,13 @@ class Experiment:
         self.checkpoint_freq = checkpoint_freq
         self.keep_checkpoint = keep_checkpoint
         self.verbose = verbose
+        self.progress_bar = progress_bar
+        self.tensorboard_log = tensorboard_log
+        self.log_interval = log_interval
+        self.eval_log_freq = eval_log_freq
+        self.save_best = bool(save_best) and len(config.runs) == 1
+        self.user_callbacks: list[BaseCallback] = []
+        self.stopped_early = False
         self.model: MADDPG | None = None
         self.eval_callback: MultiAgentEvalCallback | None = None
         self.last_checkpoint = 0
@@ -314,13 +425,18 @@ class Experiment:
 
     # --- building --------------------------------------------------------------------------------------------------
 
+    @property
+    def n_envs(self) -> int:
+        """Envs per run: the ``n_envs`` hyperparameter of a single run (rl_zoo3's), one per run in a pack."""
+        return int(self.config.runs[0].hyperparams.get("n_envs") or 1) if self.n_runs == 1 else 1
+
     def _build(self) -> tuple[MADDPG, MultiAgentEvalCallback]:
         cfg = self.config
         runs = cfg.runs
-        kwargs = model_kwargs(runs[0].hyperparams)
+        kwargs = model_kwargs(runs[0].hyperparams, cfg.unsafe_eval)
         explorations = [r.hyperparams.get("exploration") for r in runs]
         kwargs.pop("exploration", None)
-        env = make_task_vec_env(cfg.env_id, self.n_runs, cfg.env_kwargs)
+        env = make_task_vec_env(cfg.env_id, self.n_runs * self.n_envs, cfg.env_kwargs)
         action_dim = int(np.prod(env.action_space.shape))
         noises = [_action_noise(r.hyperparams, action_dim) for r in runs]
         kwargs["learning_starts"] = int(kwargs.get("learning_starts", 100)) * self.n_runs  # counted over all envs
@@ -331,20 +447,31 @@ class Experiment:
             run_seeds=[r.seed for r in runs],
             exploration=explorations,
             action_noise=None if noises[0] is None else noises,  # type: ignore[arg-type]
-            verbose=0,
+            tensorboard_log=self.tensorboard_log,
+            verbose=0 if self.log_interval is None else 1,
             **kwargs,
         )
         return model, self._eval_callback(make_eval_vec_env(cfg.env_id, cfg.eval_episodes, [r.seed for r in runs], cfg.env_kwargs))
 
     def _eval_callback(self, eval_env: Any) -> MultiAgentEvalCallback:
+        # early-stopping rules from the YAML's callback: list run after each evaluation; other callbacks every step
+        self.user_callbacks = make_callbacks(self.config.runs[0].hyperparams, self.config.unsafe_eval)
+        stoppers = [c for c in self.user_callbacks if isinstance(c, _SuccessRateStop)]
+        self.user_callbacks = [c for c in self.user_callbacks if c not in stoppers]
+        after_eval = None if not stoppers else stoppers[0] if len(stoppers) == 1 else CallbackList(stoppers)
+        if stoppers and self.config.eval_freq == 0:
+            raise ExperimentError("Early-stopping callbacks need evaluations: eval_freq must be > 0")
         return MultiAgentEvalCallback(
             eval_env,
             n_eval_episodes=self.config.eval_episodes,
-            eval_freq=self.config.eval_freq,
+            eval_freq=max(self.config.eval_freq // self.n_envs, 1) if self.config.eval_freq else 0,
             run_log_paths=[r.folder for r in self.config.runs],
+            best_model_save_path=self.config.runs[0].folder if self.save_best else None,
+            callback_after_eval=after_eval,
             save_freq=100,
-            dump_logs=False,
-            verbose=0,
+            dump_logs=self.eval_log_freq is not None,
+            log_freq=self.eval_log_freq or 1,
+            verbose=0 if self.eval_log_freq is None else 1,
             warn=False,
         )
 
@@ -383,11 +510,17 @@ class Experiment:
         total = self.config.n_timesteps * self.n_runs
         model.learn(
             total - model.num_timesteps,
-            callback=[callback, _Checkpointer(self, self.checkpoint_freq)],
+            callback=[callback, _Checkpointer(self, self.checkpoint_freq), *self.user_callbacks],
             reset_num_timesteps=not resume,
+            progress_bar=self.progress_bar,
+            log_interval=self.log_interval or 4,
         )
         if model.num_timesteps < total:
-            raise RuntimeError(f"Training stopped at {model.num_timesteps // self.n_runs} of {self.config.n_timesteps} steps")
+            if not self.user_callbacks and callback.callback is None:
+                raise RuntimeError(f"Training stopped at {model.num_timesteps // self.n_runs} of {self.config.n_timesteps} steps")
+            self.stopped_early = True  # a callback ended training (e.g. the success rate reached its threshold)
+            if self.verbose:
+                print(f"{self.folder}: stopped by a callback at {model.num_timesteps // self.n_runs} steps")
         self._finish()
         return [r.folder for r in self.config.runs]
 
@@ -400,7 +533,7 @@ class Experiment:
             solo.save(os.path.join(run.folder, "model.zip"))
             with atomic_write(os.path.join(run.folder, "config.yml")) as file:
                 file.write(yaml.safe_dump({"env_id": self.config.env_id, "seed": run.seed, "variants": run.variants,
-                                           "n_timesteps": self.config.n_timesteps, **run.hyperparams}).encode())  # fmt: skip
+                                           **run.hyperparams, "n_timesteps": self.config.n_timesteps}).encode())  # fmt: skip
             info = {
                 "command": self.config.command,
                 "wall_time_s": round(wall, 1),
@@ -409,6 +542,8 @@ class Experiment:
                 "seed": run.seed,
                 "pack_size": self.n_runs,
                 "complete": True,
+                "stopped_early": self.stopped_early,
+                "timesteps_run": int(self.model.num_timesteps // self.n_runs),
                 "sb3_macb": sb3_macb.__version__,
             }
             with atomic_write(os.path.join(run.folder, "run.json")) as file:
