@@ -22,19 +22,8 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 
-from sb3_macb import MACB, MADDPG, make_joint_env
-
-
-def speaker_listener() -> gym.Env:
-    from mpe2 import simple_speaker_listener_v4
-
-    return make_joint_env(simple_speaker_listener_v4.parallel_env(continuous_actions=True, max_cycles=20))
-
-
-def spread4() -> gym.Env:
-    from mpe2 import simple_spread_v3
-
-    return make_joint_env(simple_spread_v3.parallel_env(N=4, continuous_actions=True, max_cycles=25))
+from benchmarks_common import describe_backend, speaker_listener, spread4
+from sb3_macb import MACB, MADDPG
 
 
 def make_model(kind: str, net: list[int], batch_size: int, seed: int, **kwargs: Any) -> BaseAlgorithm:
@@ -92,6 +81,7 @@ def main() -> None:
 
     med = {name: statistics.median(values) for name, values in results.items()}
     print(f"\nthreads={args.threads} batch={args.batch_size} steps={args.steps} rounds={args.rounds} torch={th.__version__}")
+    print(f"backend: {describe_backend()}")
     print("| configuration | env steps/s (median) | min | max |")
     print("|---|---|---|---|")
     for name, values in results.items():

@@ -42,6 +42,15 @@ class BlockAdam(th.optim.Adam):
             self._cache[id(p)] = cached
         return cached[1], cached[2]
 
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        """Adam's ``zero_grad``; with ``set_to_none`` (the default) a plain loop, which costs less than the profiled
+        and grouped general version at the two calls per training step."""
+        if not set_to_none:
+            return super().zero_grad(set_to_none=False)
+        for group in self.param_groups:
+            for p in group["params"]:
+                p.grad = None
+
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self._cache = {}
         super().load_state_dict(state_dict)

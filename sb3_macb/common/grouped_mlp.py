@@ -52,11 +52,12 @@ def _linear(x: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, relu: bool)
     return out.relu_() if relu else out
 
 
-def _matmul_nt(a: th.Tensor, b: th.Tensor) -> th.Tensor:
-    """``a @ b.T``."""
+def _matmul_nt(a: th.Tensor, b: th.Tensor, out: th.Tensor | None = None) -> th.Tensor:
+    """``a @ b.T`` (into ``out`` when given: the small products write there directly, oneDNN's are copied)."""
     if b.numel() >= ONEDNN_MIN_WEIGHTS and a.shape[0] >= ONEDNN_MIN_ROWS:
-        return _LINEAR(a, b, None, "none", [], "")
-    return th.mm(a, b.t())
+        result = _LINEAR(a, b, None, "none", [], "")
+        return result if out is None else out.copy_(result)
+    return th.mm(a, b.t(), out=out)
 
 
 class _GroupedReluMLP(th.autograd.Function):
@@ -119,9 +120,9 @@ class _GroupedReluMLP(th.autograd.Function):
                 if layer < n_layers - 1:
                     grad = th.ops.aten.threshold_backward(grad, acts[layer + 1], 0)
                 if grad_w[layer] is not None:
-                    grad_w[layer][g] = _matmul_nt(grad.t(), acts[layer].t())
+                    _matmul_nt(grad.t(), acts[layer].t(), out=grad_w[layer][g])
                 if grad_b[layer] is not None:
-                    grad_b[layer][g] = grad.sum(dim=0)
+                    th.sum(grad, dim=0, out=grad_b[layer][g])
                 if layer > 0 or need_x:
                     grad = _matmul_nt(grad, weights[layer][g].t())
             if need_x:
@@ -234,7 +235,8 @@ class GroupedMLP(nn.Module):
             used when back-propagating through a frozen network.
         :return: (G', batch, out_dim), or (batch, out_dim) with ``sum_groups``.
         """
-        weights, biases = list(self.weights), list(self.biases)
+        # (the ParameterLists' own __getitem__/__iter__ cost more than the small layers' matmuls)
+        weights, biases = list(self.weights._parameters.values()), list(self.biases._parameters.values())
         in_mask, out_mask, out_bias_mask = self.in_mask, self.out_mask, self.out_bias_mask
         if detach_params:
             weights = [w.detach() for w in weights]

@@ -243,7 +243,11 @@ class MADDPG(TD3):
             unscaled = np.stack([self._run_rngs[e // step].uniform(low, high) for e in range(n_envs)]).astype(np.float32)
         else:
             assert self._last_obs is not None, "self._last_obs was not set"
-            unscaled, _ = self.predict(self._last_obs, deterministic=False)  # type: ignore[arg-type]
+            # what predict() computes for a VecEnv's Box observations, without its checks and conversions per step
+            self.policy.set_training_mode(False)
+            with th.no_grad():
+                obs = th.as_tensor(self._last_obs, device=self.device).float()  # type: ignore[arg-type]
+                unscaled = self.policy.unscale_action(self.actor(obs).cpu().numpy())
         scaled = self.policy.scale_action(unscaled)
         if action_noise is not None:
             scaled = np.clip(scaled + self._draw_noise(action_noise, n_envs), -1, 1)

@@ -1,0 +1,70 @@
+"""Env builders the benchmarks share."""
+
+import gymnasium as gym
+
+from sb3_macb import make_joint_env
+
+
+def speaker_listener() -> gym.Env:
+    from mpe2 import simple_speaker_listener_v4
+
+    return make_joint_env(simple_speaker_listener_v4.parallel_env(continuous_actions=True, max_cycles=20))
+
+
+def spread4() -> gym.Env:
+    from mpe2 import simple_spread_v3
+
+    return make_joint_env(simple_spread_v3.parallel_env(N=4, continuous_actions=True, max_cycles=25))
+
+
+def gemm_rates(rows: int = 100, n_in: int = 400, n_out: int = 300, repeats: int = 200) -> dict[str, float]:
+    """
+    One-thread GFLOP/s of ``x @ W.T + b`` at a 400-300 layer's shape through each CPU backend: MKL's ``addmm``,
+    oneDNN's ``mkldnn._linear_pointwise`` (the path GroupedMLP takes for large layers, when available) and a batched
+    ``baddbmm`` over 2 groups (the path for small layers). Measured with the current torch thread count.
+    """
+    import time
+
+    import torch as th
+
+    from sb3_macb.common.grouped_mlp import _LINEAR
+
+    x, w, b = th.randn(rows, n_in), th.randn(n_out, n_in), th.randn(n_out)
+    xs, ws, bs = th.randn(2, rows, n_in), th.randn(2, n_out, n_in), th.randn(2, 1, n_out)
+    flops = 2 * rows * n_in * n_out
+    calls = {
+        "mkl_addmm": (lambda: th.addmm(b, x, w.t()), flops),
+        "bmm": (lambda: th.baddbmm(bs, xs, ws.transpose(1, 2)), 2 * flops),
+    }
+    if _LINEAR is not None:
+        calls["onednn"] = (lambda: _LINEAR(x, w, b, "none", [], ""), flops)
+    rates = {}
+    for name, (fn, work) in calls.items():
+        for _ in range(repeats // 10):
+            fn()
+        start = time.perf_counter()
+        for _ in range(repeats):
+            fn()
+        rates[name] = work * repeats / (time.perf_counter() - start) / 1e9
+    return rates
+
+
+def describe_backend() -> str:
+    """One line: torch, threads, the GEMM rates of each backend and the path GroupedMLP takes at 400-300 and 64-64."""
+    import torch as th
+
+    from sb3_macb.common.grouped_mlp import ONEDNN_MIN_WEIGHTS, GroupedMLP, onednn_available
+
+    rates = gemm_rates()
+    big = "per-group oneDNN" if GroupedMLP.use_onednn and onednn_available() else "batched baddbmm (MKL)"
+    cpu = "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as file:
+            cpu = next(line.split(":", 1)[1].strip() for line in file if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    text = ", ".join(f"{name} {rate:.0f}" for name, rate in rates.items())
+    return (
+        f"{cpu}; torch {th.__version__}, {th.get_num_threads()} thread(s); GEMM 100x400 @ 400x300 GFLOP/s: {text}; "
+        f"path: layers with >= {ONEDNN_MIN_WEIGHTS} weights (400-300) {big}, smaller (64-64) batched baddbmm"
+    )
