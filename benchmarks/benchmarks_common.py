@@ -5,16 +5,20 @@ import gymnasium as gym
 from sb3_macb import make_joint_env
 
 
-def speaker_listener() -> gym.Env:
+def speaker_listener(continuous: bool = True) -> gym.Env:
     from mpe2 import simple_speaker_listener_v4
 
-    return make_joint_env(simple_speaker_listener_v4.parallel_env(continuous_actions=True, max_cycles=20))
+    return make_joint_env(simple_speaker_listener_v4.parallel_env(continuous_actions=continuous, max_cycles=20))
+
+
+def spread(n: int) -> gym.Env:
+    from mpe2 import simple_spread_v3
+
+    return make_joint_env(simple_spread_v3.parallel_env(N=n, continuous_actions=True, max_cycles=25))
 
 
 def spread4() -> gym.Env:
-    from mpe2 import simple_spread_v3
-
-    return make_joint_env(simple_spread_v3.parallel_env(N=4, continuous_actions=True, max_cycles=25))
+    return spread(4)
 
 
 def gemm_rates(rows: int = 100, n_in: int = 400, n_out: int = 300, repeats: int = 200) -> dict[str, float]:

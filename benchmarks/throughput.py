@@ -22,7 +22,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 
-from benchmarks_common import describe_backend, speaker_listener, spread4
+from benchmarks_common import describe_backend, speaker_listener, spread, spread4
 from sb3_macb import MACB, MADDPG
 
 
@@ -32,9 +32,14 @@ def make_model(kind: str, net: list[int], batch_size: int, seed: int, **kwargs: 
         env = gym.make("Pendulum-v1")
         noise = NormalActionNoise(np.zeros(1), 0.1 * np.ones(1))
         return DDPG("MlpPolicy", env, action_noise=noise, **common)
-    env = spread4() if kind == "maddpg-4" else speaker_listener()
+    if kind == "maddpg-discrete":
+        env = speaker_listener(continuous=False)
+    elif kind.startswith("spread-"):
+        env = spread(int(kind.split("-")[1]))
+    else:
+        env = spread4() if kind == "maddpg-4" else speaker_listener()
     dim = env.action_space.shape[0]
-    noise = NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim))
+    noise = None if kind == "maddpg-discrete" else NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim))
     return MADDPG("MlpPolicy", env, action_noise=noise, **common, **kwargs)
 
 
@@ -54,6 +59,9 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--batch-size", type=int, default=100)
     parser.add_argument("--quick", action="store_true", help="only the 400-300 speaker-listener configurations")
+    parser.add_argument("--features", action="store_true",
+                        help="discrete actions and parameter sharing instead: discrete vs continuous speaker-listener, "
+                        "simple_spread N=3 and N=6 with and without shared actors and critics (64-64)")  # fmt: skip
     args = parser.parse_args()
     th.set_num_threads(args.threads)
 
@@ -74,6 +82,18 @@ def main() -> None:
                 "MADDPG, simple_spread N=4 (4 agents), 64-64": lambda: make_model("maddpg-4", small, args.batch_size, 0),
             }
         )
+    if args.features:
+        configs = {
+            "MADDPG, speaker-listener, continuous, 64-64": lambda: make_model("maddpg", small, args.batch_size, 0),
+            "MADDPG, speaker-listener, discrete (Gumbel-softmax), 64-64": lambda: make_model(
+                "maddpg-discrete", small, args.batch_size, 0
+            ),
+        }
+        for n in (3, 6):
+            for share in (False, True):
+                name = f"MADDPG, simple_spread N={n}, 64-64, {'shared actors and critics' if share else 'one network per agent'}"
+                kwargs = dict(share_parameters="all", share_critics=True) if share else {}
+                configs[name] = lambda n=n, kwargs=kwargs: make_model(f"spread-{n}", small, args.batch_size, 0, **kwargs)
     results: dict[str, list[float]] = {name: [] for name in configs}
     for _ in range(args.rounds):
         for name, build in configs.items():

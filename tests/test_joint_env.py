@@ -74,7 +74,7 @@ def test_aec_env_is_converted():
 @pytest.mark.parametrize(
     "kwargs, error, match",
     [
-        (dict(discrete=True), TypeError, "Discrete action space"),
+        (dict(multi_discrete=True), TypeError, "MultiDiscrete action space"),
         (dict(dict_obs=True), TypeError, "Dict observation space"),
     ],
 )
@@ -83,9 +83,18 @@ def test_bad_spaces(kwargs, error, match):
         make_joint_env(Rendezvous(**kwargs))
 
 
-def test_mpe_discrete_actions_named():
-    with pytest.raises(TypeError, match="continuous_actions=True"):
-        make_joint_env(simple_spread_v3.parallel_env(N=2, continuous_actions=False))
+def test_discrete_agents_act_one_hot_and_the_env_receives_ints():
+    env = make_joint_env(Rendezvous(discrete=True))  # agent a: Discrete(3), agent b: Box (mixed)
+    layout = env.agent_layout
+    assert layout.action_dims == (3, 2) and layout.discrete_agents == (True, False)
+    assert list(layout.discrete_action_mask) == [True, True, True, False, False]
+    assert np.array_equal(env.action_space.low[:3], [0, 0, 0]) and np.array_equal(env.action_space.high[:3], [1, 1, 1])
+    env.reset(seed=0)
+    start = env.unwrapped.par_env.pos.copy()
+    env.step(np.array([0.0, 0.1, 0.9, 0.0, 0.0], dtype=np.float32))  # argmax 2: +0.2 (the toy env asserts an int)
+    assert np.isclose(env.unwrapped.par_env.pos[0], np.clip(start[0] + 0.2, -2, 2))
+    spread = make_joint_env(simple_spread_v3.parallel_env(N=2))  # mpe2's default: discrete actions
+    assert spread.agent_layout.discrete_agents == (True, True) and spread.action_space.shape == (10,)
 
 
 @pytest.mark.parametrize(

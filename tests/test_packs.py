@@ -154,3 +154,30 @@ def test_block_adam_updates_blocks_as_adam_updates_whole_tensors():
     again = BlockAdam([th.nn.Parameter(p.detach().clone()) for p in blocks], blocks=[[(0, 2), (2, 4), (4, 6)]] * 2, lr=1e-2)
     again.load_state_dict(state)
     assert float(again.state_dict()["state"][0]["step"]) == 20.0
+
+
+def test_a_pack_with_discrete_agents_is_bit_identical_to_its_solo_runs():
+    from stable_baselines3.common.env_util import make_vec_env
+    from toy_envs import Rendezvous
+
+    from sb3_macb import make_joint_env
+
+    def run(seeds):
+        env = make_vec_env(lambda: make_joint_env(Rendezvous(discrete=True)), n_envs=len(seeds))
+        model = MADDPG("MlpPolicy", env, n_runs=len(seeds), run_seeds=seeds, batch_size=8, learning_starts=20 * len(seeds),
+                       policy_kwargs=dict(net_arch=[16]), exploration=[MACB(0.5, 16) for _ in seeds])  # fmt: skip
+        model.learn(120 * len(seeds))
+        return model
+
+    pack = run([3, 4])
+    for k, seed in enumerate([3, 4]):
+        solo, member = run([seed]), pack.get_run(k)
+        for a, b in zip(solo.actor.parameters(), member.actor.parameters()):
+            assert th.equal(a, b)
+
+
+def test_packs_refuse_shared_parameters_for_now():
+    from mpe2 import simple_spread_v3
+
+    with pytest.raises(ValueError, match="not supported in packs"):
+        MADDPG("MlpPolicy", simple_spread_v3.parallel_env(N=3, continuous_actions=True), n_runs=2, share_parameters="all")

@@ -17,8 +17,9 @@ class Rendezvous(ParallelEnv):
     component. ``is_success`` is reported at every step (both agents within 0.1 of the origin).
 
     Switches for error tests: ``nan_obs_step``, ``nan_reward_step``, ``disappear_step`` (agent ``b`` ends its
-    episode alone), ``drop_agent_step`` (agent ``b`` is missing from the returned dicts), ``discrete``,
-    ``dict_obs``.
+    episode alone), ``drop_agent_step`` (agent ``b`` is missing from the returned dicts), ``dict_obs``,
+    ``multi_discrete`` (agent ``a`` has a MultiDiscrete action space). With ``discrete``, agent ``a`` chooses among
+    Discrete(3) moves (-1, 0, +1 times 0.2) and ``b`` stays continuous (a mixed env).
     """
 
     metadata = {"render_modes": [], "name": "rendezvous_v0"}
@@ -33,7 +34,9 @@ class Rendezvous(ParallelEnv):
         discrete: bool = False,
         dict_obs: bool = False,
         terminate_on_success: bool = False,
+        multi_discrete: bool = False,
     ):
+        self.multi_discrete = multi_discrete
         self.possible_agents = ["a", "b"]
         self.agents: list[str] = []
         self.max_steps = max_steps
@@ -56,7 +59,9 @@ class Rendezvous(ParallelEnv):
 
     @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Space:
-        if self.discrete:
+        if self.multi_discrete and agent == "a":
+            return spaces.MultiDiscrete([3, 2])
+        if self.discrete and agent == "a":
             return spaces.Discrete(3)
         if agent == "a":
             return spaces.Box(-1, 1, (1,), np.float32)
@@ -80,7 +85,12 @@ class Rendezvous(ParallelEnv):
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         self.t += 1
-        self.pos[0] = np.clip(self.pos[0] + 0.2 * float(np.asarray(actions["a"]).ravel()[0]), -2, 2)
+        if self.discrete:
+            assert isinstance(actions["a"], (int, np.integer)), actions["a"]  # the env receives an int
+            move_a = float(actions["a"]) - 1.0
+        else:
+            move_a = float(np.asarray(actions["a"]).ravel()[0])
+        self.pos[0] = np.clip(self.pos[0] + 0.2 * move_a, -2, 2)
         self.pos[1] = np.clip(self.pos[1] + 0.4 * float(np.asarray(actions["b"]).ravel()[0]), -2, 2)
         reward = -float(np.sum(self.pos**2))
         if self.nan_reward_step is not None and self.t >= self.nan_reward_step:

@@ -141,6 +141,28 @@ class _GroupedReluMLP(th.autograd.Function):
         return (grad_x, None, None, None, *grad_w, *grad_b)
 
 
+class _SharedGather(th.autograd.Function):
+    """
+    ``params.index_select(0, index)`` whose backward sums each parameter group's gradients in a fixed order (its
+    evaluation groups in index order), so that a run's shared gradients do not depend on the other runs of a pack
+    (``index_select``'s own backward accumulates through a sort whose order of equal keys is not fixed).
+    """
+
+    @staticmethod
+    def forward(ctx: Any, params: th.Tensor, index: th.Tensor, members: th.Tensor) -> th.Tensor:  # type: ignore[override]
+        ctx.save_for_backward(members)
+        return params.index_select(0, index)
+
+    @staticmethod
+    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:  # type: ignore[override]
+        (members,) = ctx.saved_tensors
+        padded = th.cat([grad, grad.new_zeros(1, *grad.shape[1:])])  # row len(grad): a zero for absent members
+        total = padded.index_select(0, members[:, 0])
+        for k in range(1, members.shape[1]):
+            total = total + padded.index_select(0, members[:, k])
+        return total, None, None
+
+
 class GroupedMLP(nn.Module):
     """
     ``G`` independent MLPs of the same hidden sizes, evaluated together.
@@ -164,6 +186,9 @@ class GroupedMLP(nn.Module):
     :param group_blocks: (G,) block id of each group: consecutive groups of one id form a block that the
         optimizer updates as a tensor of its own (see :class:`~sb3_macb.common.block_adam.BlockAdam`). Default:
         ``group_runs``.
+    :param param_index: (G',) for parameter sharing: evaluation group ``j`` uses parameter group ``param_index[j]``
+        (the masks, runs and blocks above describe the G parameter groups). None: one parameter group per evaluation
+        group. Shared parameters receive the sum of their evaluation groups' gradients.
     """
 
     use_onednn: bool = True  # class-wide switch; the oneDNN path is taken only where it applies
@@ -178,6 +203,7 @@ class GroupedMLP(nn.Module):
         group_runs: np.ndarray | None = None,
         generators: list[th.Generator] | None = None,
         group_blocks: np.ndarray | None = None,
+        param_index: np.ndarray | None = None,
     ):
         super().__init__()
         in_mask_t = th.as_tensor(np.asarray(in_mask), dtype=th.float32)
@@ -226,6 +252,19 @@ class GroupedMLP(nn.Module):
                 self.weights[0].mul_(self.in_mask)
             self.weights[-1].mul_(self.out_mask)
             self.biases[-1].mul_(self.out_bias_mask)
+        if param_index is not None:
+            index = np.asarray(param_index, dtype=np.int64)
+            if index.ndim != 1 or index.min() < 0 or index.max() >= n_groups:
+                raise ValueError(f"param_index must be a 1-D array of parameter groups in [0, {n_groups}), got {index}")
+            self.register_buffer("param_index", th.as_tensor(index), persistent=False)
+            width = int(np.bincount(index, minlength=n_groups).max())
+            members = np.full((n_groups, width), len(index), dtype=np.int64)  # len(index): the zero row
+            for p in range(n_groups):
+                rows = np.flatnonzero(index == p)
+                members[p, : len(rows)] = rows
+            self.register_buffer("param_members", th.as_tensor(members), persistent=False)
+        else:
+            self.param_index = None
 
     def forward(self, x: th.Tensor, groups: slice | None = None, detach_params: bool = False) -> th.Tensor:
         """
@@ -241,6 +280,12 @@ class GroupedMLP(nn.Module):
         if detach_params:
             weights = [w.detach() for w in weights]
             biases = [b.detach() for b in biases]
+        if self.param_index is not None:  # shared parameters: each evaluation group reads its parameter group
+            index = self.param_index
+            weights = [_SharedGather.apply(w, index, self.param_members) for w in weights]
+            biases = [_SharedGather.apply(b, index, self.param_members) for b in biases]
+            in_mask = None if in_mask is None else in_mask.index_select(0, index)
+            out_mask, out_bias_mask = out_mask.index_select(0, index), out_bias_mask.index_select(0, index)
         if groups is not None:
             # (slicing parameters that need a gradient would cost a zero-filled copy in backward)
             weights = [w[groups] for w in weights]

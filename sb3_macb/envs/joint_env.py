@@ -18,16 +18,34 @@ class AgentLayout:
 
     :param agents: Agent names, in ``possible_agents`` order.
     :param obs_dims: Size of each agent's (flattened) observation.
-    :param action_dims: Size of each agent's action.
+    :param action_dims: Size of each agent's action (for a ``Discrete(n)`` agent: n, its one-hot action).
+    :param discrete: Whether each agent's action space is ``Discrete`` (empty: every agent is continuous).
     """
 
     agents: tuple[str, ...]
     obs_dims: tuple[int, ...]
     action_dims: tuple[int, ...]
+    discrete: tuple[bool, ...] = ()
 
     def __post_init__(self) -> None:
         if not (len(self.agents) == len(self.obs_dims) == len(self.action_dims)) or len(self.agents) == 0:
             raise ValueError(f"Invalid agent layout: {self}")
+        if self.discrete and len(self.discrete) != len(self.agents):
+            raise ValueError(f"Invalid agent layout (one discrete flag per agent): {self}")
+
+    @property
+    def discrete_agents(self) -> tuple[bool, ...]:
+        """For each agent, whether its actions are discrete (layouts saved before discrete actions have none)."""
+        flags = self.__dict__.get("discrete") or ()
+        return tuple(bool(f) for f in flags) if flags else (False,) * len(self.agents)
+
+    @property
+    def discrete_action_mask(self) -> np.ndarray:
+        """(action_dim,) bool: the joint action's entries that belong to discrete agents' one-hot actions."""
+        mask = np.zeros(self.action_dim, dtype=bool)
+        for sl, flag in zip(self.action_slices, self.discrete_agents):
+            mask[sl] = flag
+        return mask
 
     @property
     def n_agents(self) -> int:
@@ -64,10 +82,11 @@ def is_pettingzoo_env(env: Any) -> bool:
 
 class JointEnv(gym.Env):
     """
-    A PettingZoo ``ParallelEnv`` with continuous (``Box``) actions, seen as one gymnasium env.
+    A PettingZoo ``ParallelEnv`` with continuous (``Box``) or ``Discrete`` actions, seen as one gymnasium env.
 
     - observation: every agent's observation flattened and concatenated, in ``possible_agents`` order;
-    - action: every agent's action concatenated, each agent keeping its own bounds;
+    - action: every agent's action concatenated, each agent keeping its own bounds; a ``Discrete(n)`` agent's action
+      is n entries in [0, 1] (a one-hot vector, or any scores) and the env receives their argmax as an int;
     - reward: the sum of the agents' rewards (or their mean, with ``team_reward="mean"``: for tasks where every
       agent receives the same shared reward, the mean is that reward, not N times it); the per-agent rewards are in
       ``info["agent_rewards"]``
@@ -103,13 +122,20 @@ class JointEnv(gym.Env):
         if len(agents) == 0:
             raise ValueError("The PettingZoo environment has no agents (possible_agents is empty)")
 
-        obs_spaces, act_spaces = [], []
+        obs_spaces, act_spaces, discrete = [], [], []
         for agent in agents:
             obs_space, act_space = env.observation_space(agent), env.action_space(agent)
-            if not isinstance(act_space, spaces.Box):
+            if isinstance(act_space, spaces.Discrete):
+                if act_space.start != 0:
+                    raise TypeError(f"Agent '{agent}' has {act_space} with start={act_space.start}; sb3_macb needs start=0")
+                act_space = spaces.Box(0.0, 1.0, (int(act_space.n),), dtype=np.float32)  # one-hot, argmax to the env
+                discrete.append(True)
+            elif isinstance(act_space, spaces.Box):
+                discrete.append(False)
+            else:
                 raise TypeError(
-                    f"Agent '{agent}' has a {type(act_space).__name__} action space; sb3_macb (MADDPG) needs continuous "
-                    "Box action spaces. For MPE environments pass continuous_actions=True."
+                    f"Agent '{agent}' has a {type(act_space).__name__} action space; sb3_macb (MADDPG) supports Box and "
+                    "Discrete action spaces (for MultiDiscrete, split the agent's choices or flatten them into one Discrete)."
                 )
             if not isinstance(obs_space, spaces.Box):
                 raise TypeError(
@@ -125,6 +151,7 @@ class JointEnv(gym.Env):
             agents=agents,
             obs_dims=tuple(int(np.prod(s.shape)) for s in obs_spaces),
             action_dims=tuple(int(np.prod(s.shape)) for s in act_spaces),
+            discrete=tuple(discrete) if any(discrete) else (),
         )
         self._obs_shapes = [s.shape for s in obs_spaces]
         self._act_shapes = [s.shape for s in act_spaces]
@@ -170,7 +197,8 @@ class JointEnv(gym.Env):
         if action.shape[0] != self.agent_layout.action_dim:
             raise ValueError(f"Expected a joint action of size {self.agent_layout.action_dim}, got {action.shape[0]}")
         actions = {
-            agent: action[sl].reshape(shape) for agent, sl, shape in zip(agents, self._action_slices, self._act_shapes)
+            agent: int(np.argmax(action[sl])) if flag else action[sl].reshape(shape)
+            for agent, sl, shape, flag in zip(agents, self._action_slices, self._act_shapes, self.agent_layout.discrete_agents)
         }
         observations, rewards, terminations, truncations, infos = self.par_env.step(actions)
 
@@ -212,7 +240,8 @@ def make_joint_env(env: ParallelEnv | AECEnv, check_finite: bool = True, team_re
     """
     Turn a PettingZoo environment into a single gymnasium environment usable by SB3 and MADDPG.
 
-    :param env: PettingZoo ``ParallelEnv`` or ``AECEnv`` with ``Box`` action and observation spaces.
+    :param env: PettingZoo ``ParallelEnv`` or ``AECEnv`` with ``Box`` observation spaces and ``Box`` or ``Discrete``
+        action spaces.
     :param check_finite: Raise an error when an observation or a reward is NaN or infinite.
     :param team_reward: The scalar reward: ``"sum"`` of the agents' rewards, or their ``"mean"`` (for a shared reward).
     :return: The joint environment (see :class:`JointEnv`).

@@ -81,6 +81,12 @@ class MADDPG(TD3):
     :param n_runs: Independent runs trained together (a pack); 1 for an ordinary model.
     :param run_seeds: Seed of each run (networks, action noise, random warm-up actions, minibatches, env seeds,
         MACB's hash matrix). Default: ``seed + k`` for run ``k`` when ``seed`` is given.
+    :param share_parameters: Agents that share one actor: ``"all"``, ``"prefix"`` (names equal up to the last
+        ``_``, as mpe2's ``adversary_*``/``agent_*``), or lists of agent names; None: every agent has its own. Agents of
+        a group need equal observation and action spaces; a shared actor reads the agent's observation followed by
+        its one-hot id within the group.
+    :param share_critics: Share the (centralized) critics in the same groups, each critic input with the agent's id;
+        each agent's critic still learns from its own reward.
     :param _init_setup_model: Whether or not to build the network at the creation of the instance.
     """
 
@@ -121,9 +127,11 @@ class MADDPG(TD3):
         device: th.device | str = "auto",
         n_runs: int = 1,
         run_seeds: list[int] | None = None,
+        share_parameters: str | list[list[str]] | None = None,
+        share_critics: bool = False,
         _init_setup_model: bool = True,
     ):
-        if policy_kwargs and ("agent_layout" in policy_kwargs or "centralized_critic" in policy_kwargs):
+        if policy_kwargs and ({"agent_layout", "centralized_critic", "share_actors", "share_critics"} & set(policy_kwargs)):
             raise ValueError(
                 "Pass centralized_critic to MADDPG itself, not in policy_kwargs; the agent layout is read from the env"
             )
@@ -143,6 +151,19 @@ class MADDPG(TD3):
             seed = self.run_seeds[0]  # type: ignore[index]
         self.agent_layout: AgentLayout | None = None
         self.centralized_critic = centralized_critic
+        if not (share_parameters is None or share_parameters in ("all", "prefix") or isinstance(share_parameters, (list, tuple))):
+            raise ValueError(f"share_parameters must be None, 'all', 'prefix' or a list of lists of agent names, got {share_parameters!r}")
+        if share_critics and share_parameters is None:
+            raise ValueError("share_critics=True shares critics in the groups of share_parameters: give share_parameters too")
+        if share_critics and not centralized_critic:
+            raise ValueError("Critics can be shared only when they are centralized (centralized_critic=True)")
+        if share_parameters is not None and n_runs > 1:
+            raise ValueError(
+                "share_parameters is not supported in packs (n_runs > 1) yet: a packed run with shared networks was not "
+                "bit-identical to its solo run in our tests; train such runs one per model"
+            )
+        self.share_parameters = [list(g) for g in share_parameters] if isinstance(share_parameters, (list, tuple)) else share_parameters
+        self.share_critics = bool(share_critics)
         if isinstance(exploration, (list, tuple)):
             per_run = list(exploration)
         else:  # one setting for every run: each run gets its own copy (and its own count table)
@@ -238,20 +259,43 @@ class MADDPG(TD3):
         """
         assert self._run_rngs is not None
         step = self.envs_per_run
+        discrete = self.agent_layout.discrete_action_mask if self.actor.has_discrete else None  # type: ignore[union-attr]
         if self.num_timesteps < learning_starts:
             low, high = self.action_space.low, self.action_space.high  # type: ignore[attr-defined]
             unscaled = np.stack([self._run_rngs[e // step].uniform(low, high) for e in range(n_envs)]).astype(np.float32)
+            if discrete is not None:  # a discrete agent's warm-up action: one-hot of a uniform random choice
+                unscaled = self._one_hot(unscaled)
         else:
             assert self._last_obs is not None, "self._last_obs was not set"
             # what predict() computes for a VecEnv's Box observations, without its checks and conversions per step
             self.policy.set_training_mode(False)
+            gumbel = None
+            if discrete is not None:  # discrete agents explore by sampling their policy (Gumbel-max)
+                dim = self.agent_layout.action_dim  # type: ignore[union-attr]
+                gumbel = th.as_tensor(np.stack([self._run_rngs[e // step].gumbel(size=dim) for e in range(n_envs)]),
+                                      dtype=th.float32, device=self.device)  # fmt: skip
             with th.no_grad():
                 obs = th.as_tensor(self._last_obs, device=self.device).float()  # type: ignore[arg-type]
-                unscaled = self.policy.unscale_action(self.actor(obs).cpu().numpy())
+                unscaled = self.policy.unscale_action(self.actor(obs, gumbel=gumbel).cpu().numpy())
         scaled = self.policy.scale_action(unscaled)
         if action_noise is not None:
-            scaled = np.clip(scaled + self._draw_noise(action_noise, n_envs), -1, 1)
+            noise = self._draw_noise(action_noise, n_envs)
+            if discrete is not None:
+                noise[:, discrete] = 0.0  # action noise is for continuous agents
+            scaled = np.clip(scaled + noise, -1, 1)
         return self.policy.unscale_action(scaled), scaled
+
+    def _one_hot(self, actions: np.ndarray) -> np.ndarray:
+        """(n, action_dim) actions in the env's bounds with each discrete agent's slice made one-hot at its argmax."""
+        result = actions.copy()
+        layout = self.agent_layout
+        assert layout is not None
+        for sl, flag in zip(layout.action_slices, layout.discrete_agents):
+            if flag:
+                block = np.zeros_like(result[:, sl])
+                block[np.arange(len(block)), result[:, sl].argmax(axis=1)] = 1.0
+                result[:, sl] = block
+        return result
 
     def _draw_noise(self, action_noise: ActionNoise, n_envs: int) -> np.ndarray:
         """One noise vector per env, Gaussian and Ornstein-Uhlenbeck noise drawn from the env's run's generator."""
@@ -330,12 +374,15 @@ class MADDPG(TD3):
             self.replay_buffer_class = MultiAgentReplayBuffer
         # The layout-derived arguments are passed while building, not stored in the user's kwargs
         user_policy_kwargs, user_buffer_kwargs = self.policy_kwargs, self.replay_buffer_kwargs
+        groups = self._share_groups(layout)
         self.policy_kwargs = {
             **user_policy_kwargs,
             "agent_layout": layout,
             "centralized_critic": self.centralized_critic,
             "n_runs": self.n_runs,
             "run_seeds": self.run_seeds,
+            "share_actors": groups,
+            "share_critics": groups if self.__dict__.get("share_critics") else None,
         }
         self.replay_buffer_kwargs = {**user_buffer_kwargs, **buffer_extra}
         try:
@@ -351,6 +398,38 @@ class MADDPG(TD3):
         self._actor_target_params = list(self.actor_target.parameters())
         self._critic_params = list(self.critic.parameters())
         self._critic_target_params = list(self.critic_target.parameters())
+
+    def _share_groups(self, layout: AgentLayout) -> list[list[int]] | None:
+        """
+        The sharing groups (agent indices) of ``share_parameters``: ``"all"``, ``"prefix"`` (agents whose names agree
+        up to the last ``_``, e.g. mpe2's ``adversary_0``, ``adversary_1``), or lists of agent names (agents not
+        named keep their own networks). None: no sharing.
+        """
+        spec = self.__dict__.get("share_parameters")  # (models saved before sharing existed have none)
+        if spec is None:
+            return None
+        names = list(layout.agents)
+        if spec == "all":
+            groups = [list(range(len(names)))]
+        elif spec == "prefix":
+            prefixes: dict[str, list[int]] = {}
+            for i, name in enumerate(names):
+                prefixes.setdefault(name.rsplit("_", 1)[0], []).append(i)
+            groups = list(prefixes.values())
+        else:
+            unknown = sorted({n for g in spec for n in g} - set(names))
+            if unknown:
+                raise ValueError(f"share_parameters names agents {unknown} that the env does not have; it has {names}")
+            listed = [names.index(n) for g in spec for n in g]
+            if len(listed) != len(set(listed)):
+                raise ValueError(f"share_parameters lists an agent twice: {spec}")
+            groups = [[names.index(n) for n in g] for g in spec if g]
+            groups += [[i] for i in range(len(names)) if i not in listed]
+        groups = sorted(groups, key=min)
+        from sb3_macb.maddpg.policies import check_share_groups
+
+        check_share_groups(layout, groups)
+        return groups
 
     def set_env(self, env: GymEnv | Any, force_reset: bool = True) -> None:
         env = self._wrap_env(env, self.verbose)
@@ -398,6 +477,8 @@ class MADDPG(TD3):
                 next_actions = self.actor_target(data.next_observations)
                 if self.target_policy_noise > 0:
                     noise = th.randn_like(next_actions).mul_(self.target_policy_noise)
+                    if self.actor.has_discrete:
+                        noise = noise.masked_fill(self.actor.discrete_mask, 0.0)  # (discrete targets stay one-hot)
                     next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
                 next_q = self.critic_target(data.next_observations, next_actions)  # (n_critics, n_runs, n_agents, batch)
                 next_q = next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0]
@@ -413,11 +494,24 @@ class MADDPG(TD3):
 
             if self._n_updates % self.policy_delay == 0:
                 # Agent i's critic sees the buffer actions with agent i's slice replaced by its actor's action
-                pi = self.actor(data.observations).unsqueeze(1)  # (n_runs, 1, batch, action_dim)
+                penalty = None
+                if self.actor.has_discrete:
+                    # discrete agents: a Gumbel-max sample with the straight-through Gumbel-softmax gradient, the
+                    # noise drawn by each run's own generator; their logits are kept small as in the MADDPG paper
+                    shape = (batch_size, self.agent_layout.action_dim)  # type: ignore[union-attr]
+                    gumbel = th.as_tensor(np.stack([rng.gumbel(size=shape) for rng in self._run_rngs]), dtype=th.float32,
+                                          device=self.device)  # fmt: skip
+                    raw = self.actor.raw(data.observations)
+                    pi = self.actor.squash(raw, gumbel, straight_through=True).unsqueeze(1)
+                    penalty = 1e-3 * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
+                else:
+                    pi = self.actor(data.observations).unsqueeze(1)  # (n_runs, 1, batch, action_dim)
                 actions = data.actions.unsqueeze(1)
                 mixed = actions + self._action_masks * (pi - actions)  # (n_runs, n_agents, batch, action_dim)
                 q = self.critic.q1_forward(data.observations, mixed, detach_params=True)
                 actor_loss = -q.mean(dim=-1).sum()
+                if penalty is not None:
+                    actor_loss = actor_loss + penalty
                 self.actor.optimizer.zero_grad(set_to_none=True)
                 actor_loss.backward()
                 self.actor.optimizer.step()
@@ -565,12 +659,14 @@ class MADDPG(TD3):
         return copy.deepcopy(noise)  # type: ignore[arg-type]
 
     def _run_slice(self, tensor: th.Tensor, module: str, k: int) -> th.Tensor:
-        """Run ``k``'s groups of a stacked actor (groups: run, agent) or critic (groups: critic, run, agent) tensor."""
-        n_agents = self.agent_layout.n_agents  # type: ignore[union-attr]
+        """
+        Run ``k``'s groups of a stacked actor (groups: run, network) or critic (groups: critic, run, network) tensor;
+        a run has one network per agent, or one per sharing group.
+        """
         if module == "actor":
-            return tensor.reshape(self.n_runs, n_agents, *tensor.shape[1:])[k].clone()
-        n_critics = tensor.shape[0] // (self.n_runs * n_agents)
-        return tensor.reshape(n_critics, self.n_runs, n_agents, *tensor.shape[1:])[:, k].reshape(-1, *tensor.shape[1:]).clone()
+            return tensor.reshape(self.n_runs, -1, *tensor.shape[1:])[k].clone()
+        n_critics = self.policy.n_critics
+        return tensor.reshape(n_critics, self.n_runs, -1, *tensor.shape[1:])[:, k].reshape(-1, *tensor.shape[1:]).clone()
 
 
 class _ExplorationPack:

@@ -39,17 +39,77 @@ def _split_runs(x: th.Tensor, n_runs: int) -> th.Tensor:
     return x.reshape(n_runs, x.shape[0] // n_runs, x.shape[-1])
 
 
+class _SharedInputs:
+    """
+    Index tables for agents that share networks: each agent's own slice of a vector (padded to the widest agent) and
+    its one-hot id within its sharing group, so that agents of a group feed the same weight columns.
+
+    :param slices: Each agent's slice of the input vector (observation or, for outputs, action).
+    :param groups: Sharing groups (lists of agent indices; every agent in exactly one).
+    """
+
+    def __init__(self, slices: list[slice], groups: list[list[int]]):
+        n_agents = len(slices)
+        self.group_of = np.zeros(n_agents, dtype=np.int64)
+        position = np.zeros(n_agents, dtype=np.int64)
+        for p, group in enumerate(groups):
+            for k, agent in enumerate(group):
+                self.group_of[agent], position[agent] = p, k
+        shared = [len(groups[self.group_of[i]]) > 1 for i in range(n_agents)]
+        self.n_ids = max((len(g) for g in groups if len(g) > 1), default=0)
+        self.width = max(sl.stop - sl.start for sl in slices)
+        total = max(sl.stop for sl in slices)
+        self.gather = np.full((n_agents, self.width), total, dtype=np.int64)  # `total`: an appended zero column
+        for i, sl in enumerate(slices):
+            self.gather[i, : sl.stop - sl.start] = np.arange(sl.start, sl.stop)
+        self.ids = np.zeros((n_agents, self.n_ids), dtype=np.float32)
+        for i in range(n_agents):
+            if shared[i]:
+                self.ids[i, position[i]] = 1.0
+        # per group: the columns its members use (own slice, then the id if the group is shared)
+        self.masks = np.zeros((len(groups), self.width + self.n_ids), dtype=np.float32)
+        for p, group in enumerate(groups):
+            size = slices[group[0]].stop - slices[group[0]].start
+            self.masks[p, :size] = 1.0
+            if len(group) > 1:
+                self.masks[p, self.width :] = 1.0
+        # where each column of the joint vector comes from in the agents' padded outputs
+        self.scatter = np.zeros(total, dtype=np.int64)
+        for i, sl in enumerate(slices):
+            self.scatter[sl] = i * self.width + np.arange(sl.stop - sl.start)
+
+
+def check_share_groups(layout: AgentLayout, groups: list[list[int]]) -> None:
+    """Raise a clear error unless every agent is in exactly one group and a group's agents have equal spaces."""
+    seen = sorted(i for g in groups for i in g)
+    if seen != list(range(layout.n_agents)):
+        raise ValueError(f"Sharing groups must hold every agent exactly once, got {groups} for {layout.n_agents} agents")
+    for group in groups:
+        spec = {(layout.obs_dims[i], layout.action_dims[i], layout.discrete_agents[i]) for i in group}
+        if len(spec) > 1:
+            names = [layout.agents[i] for i in group]
+            raise ValueError(
+                f"Agents {names} cannot share networks: their (observation size, action size, discrete) differ: "
+                f"{sorted(spec)}"
+            )
+
+
 class MultiAgentActor(nn.Module):
     """
     One deterministic actor per agent (and per run of a pack), each reading its own observation; the output is
-    the joint action in [-1, 1] (tanh), each agent writing its own slice. Group ``r * n_agents + i`` is agent
-    ``i`` of run ``r``.
+    the joint action in [-1, 1], each agent writing its own slice. Group ``r * n_agents + i`` is agent ``i`` of run
+    ``r``. A continuous agent's slice is ``tanh`` of its outputs; a discrete agent's outputs are logits, and its
+    slice is the one-hot action (scaled to -1/1) of their argmax, or, given Gumbel noise, of a Gumbel-max sample,
+    with the straight-through Gumbel-softmax gradient for training (as the MADDPG paper trains discrete actions).
 
     :param layout: The agents' observation and action sizes.
     :param net_arch: Hidden layer sizes of each actor.
     :param activation_fn: Activation function.
     :param n_runs: Independent runs whose actors are stacked together (1: an ordinary model).
     :param generators: One torch generator per run for the initial weights (None: the global one).
+    :param gumbel_temperature: Temperature of the Gumbel-softmax relaxation of discrete actions.
+    :param share_groups: Agents that share one actor (lists of agent indices, every agent in one; None: no sharing).
+        A shared actor reads its agent's own observation followed by the agent's one-hot id within the group.
     """
 
     def __init__(
@@ -59,31 +119,104 @@ class MultiAgentActor(nn.Module):
         activation_fn: type[nn.Module] = nn.ReLU,
         n_runs: int = 1,
         generators: list[th.Generator] | None = None,
+        gumbel_temperature: float = 1.0,
+        share_groups: list[list[int]] | None = None,
     ):
         super().__init__()
         self.n_agents = layout.n_agents
         self.n_runs = n_runs
-        self.mu = GroupedMLP(
-            np.tile(_block_mask(layout.obs_slices, layout.obs_dim), (n_runs, 1)),
-            net_arch,
-            np.tile(_block_mask(layout.action_slices, layout.action_dim), (n_runs, 1)),
-            activation_fn,
-            group_runs=np.repeat(np.arange(n_runs), layout.n_agents),
-            generators=generators,
-        )
+        self.gumbel_temperature = gumbel_temperature
+        self.shared: _SharedInputs | None = None
+        if share_groups is None:
+            self.mu = GroupedMLP(
+                np.tile(_block_mask(layout.obs_slices, layout.obs_dim), (n_runs, 1)),
+                net_arch,
+                np.tile(_block_mask(layout.action_slices, layout.action_dim), (n_runs, 1)),
+                activation_fn,
+                group_runs=np.repeat(np.arange(n_runs), layout.n_agents),
+                generators=generators,
+            )
+        else:
+            check_share_groups(layout, share_groups)
+            self.shared = shared = _SharedInputs(layout.obs_slices, share_groups)
+            outputs = _SharedInputs(layout.action_slices, share_groups)
+            n_groups = len(share_groups)
+            self.mu = GroupedMLP(
+                np.tile(shared.masks, (n_runs, 1)),
+                net_arch,
+                np.tile(outputs.masks[:, : outputs.width], (n_runs, 1)),
+                activation_fn,
+                group_runs=np.repeat(np.arange(n_runs), n_groups),
+                generators=generators,
+                param_index=(np.arange(n_runs)[:, None] * n_groups + shared.group_of[None, :]).ravel(),
+            )
+            self.register_buffer("obs_gather", th.as_tensor(shared.gather), persistent=False)
+            self.register_buffer("agent_ids", th.as_tensor(shared.ids), persistent=False)
+            self.register_buffer("action_scatter", th.as_tensor(outputs.scatter), persistent=False)
+            self.action_width = outputs.width
+        mask = layout.discrete_action_mask
+        self.has_discrete = bool(mask.any())
+        self.register_buffer("discrete_mask", th.as_tensor(mask), persistent=False)
+        # discrete agents' logits gathered into a padded (n_discrete_agents, max_n) grid, so that softmax and argmax
+        # run for all of them at once
+        slices = [sl for sl, flag in zip(layout.action_slices, layout.discrete_agents) if flag]
+        width = max((sl.stop - sl.start for sl in slices), default=0)
+        pad_idx = np.zeros((len(slices), width), dtype=np.int64)
+        valid = np.zeros((len(slices), width), dtype=bool)
+        for row, sl in enumerate(slices):
+            pad_idx[row, : sl.stop - sl.start] = np.arange(sl.start, sl.stop)
+            valid[row, : sl.stop - sl.start] = True
+        self.register_buffer("pad_idx", th.as_tensor(pad_idx), persistent=False)
+        self.register_buffer("pad_valid", th.as_tensor(valid), persistent=False)
+        self.register_buffer("discrete_dims", th.as_tensor(np.flatnonzero(mask)), persistent=False)
 
-    def forward(self, obs: th.Tensor) -> th.Tensor:
-        """
-        :param obs: (n_runs, batch, obs_dim), or (n_runs * n, obs_dim) with the runs' rows one run after another.
-        :return: Joint actions, of the same leading shape as ``obs``.
-        """
+    def raw(self, obs: th.Tensor) -> th.Tensor:
+        """The actors' outputs before squashing (logits for discrete agents), of the joint action's shape."""
         x = _split_runs(obs, self.n_runs)
         runs, batch, dim = x.shape
+        if self.shared is not None:
+            padded = th.cat([x, x.new_zeros(runs, batch, 1)], dim=-1)[..., self.obs_gather]  # (runs, batch, agents, w)
+            ids = self.agent_ids.expand(runs, batch, *self.agent_ids.shape)
+            inputs = th.cat([padded, ids], dim=-1).transpose(1, 2).reshape(runs * self.n_agents, batch, -1)
+            out = self.mu(inputs).view(runs, self.n_agents, batch, self.action_width).transpose(1, 2)
+            out = out.reshape(runs, batch, -1)[..., self.action_scatter]
+            return out if obs.dim() == 3 else out.reshape(obs.shape[0], -1)
         x = x.unsqueeze(1).expand(runs, self.n_agents, batch, dim).reshape(runs * self.n_agents, batch, dim)
-        out = self.mu(x)
         # each agent writes its own slice (the others' outputs are exact zeros): the sum assembles the joint action
-        action = th.tanh(out.view(runs, self.n_agents, batch, -1).sum(dim=1))
-        return action if obs.dim() == 3 else action.reshape(obs.shape[0], -1)
+        out = self.mu(x).view(runs, self.n_agents, batch, -1).sum(dim=1)
+        return out if obs.dim() == 3 else out.reshape(obs.shape[0], -1)
+
+    def forward(self, obs: th.Tensor, gumbel: th.Tensor | None = None, straight_through: bool = False) -> th.Tensor:
+        """
+        :param obs: (n_runs, batch, obs_dim), or (n_runs * n, obs_dim) with the runs' rows one run after another.
+        :param gumbel: Gumbel(0, 1) noise of the joint action's shape, added to discrete agents' logits (a sample
+            of their policy); None: their argmax (the deterministic policy).
+        :param straight_through: Discrete agents' one-hot actions carry the Gumbel-softmax gradient.
+        :return: Joint actions in [-1, 1], of the same leading shape as ``obs``.
+        """
+        if not self.has_discrete and self.shared is None:
+            x = _split_runs(obs, self.n_runs)
+            runs, batch, dim = x.shape
+            x = x.unsqueeze(1).expand(runs, self.n_agents, batch, dim).reshape(runs * self.n_agents, batch, dim)
+            out = self.mu(x)
+            action = th.tanh(out.view(runs, self.n_agents, batch, -1).sum(dim=1))
+            return action if obs.dim() == 3 else action.reshape(obs.shape[0], -1)
+        return self.squash(self.raw(obs), gumbel, straight_through)
+
+    def squash(self, raw: th.Tensor, gumbel: th.Tensor | None = None, straight_through: bool = False) -> th.Tensor:
+        """Actions in [-1, 1] from :meth:`raw` outputs (see :meth:`forward`)."""
+        continuous = th.tanh(raw)
+        if not self.has_discrete:
+            return continuous
+        logits = raw if gumbel is None else raw + gumbel
+        grid = logits[..., self.pad_idx].masked_fill(~self.pad_valid, -th.inf)  # (..., n_discrete, max_n)
+        hard = nn.functional.one_hot(grid.argmax(dim=-1), grid.shape[-1]).to(raw.dtype)
+        if straight_through:
+            soft = th.softmax(grid / self.gumbel_temperature, dim=-1)
+            hard = hard - soft.detach() + soft
+        one_hot = hard[..., self.pad_valid]  # (..., n_discrete_dims), in the order of discrete_dims
+        scattered = continuous.new_zeros(continuous.shape).index_copy(-1, self.discrete_dims, 2.0 * one_hot - 1.0)
+        return th.where(self.discrete_mask, scattered, continuous)
 
 
 class MultiAgentCritic(nn.Module):
@@ -110,20 +243,34 @@ class MultiAgentCritic(nn.Module):
         centralized: bool = True,
         n_runs: int = 1,
         generators: list[th.Generator] | None = None,
+        share_groups: list[list[int]] | None = None,
     ):
         super().__init__()
         self.n_agents = layout.n_agents
         self.n_critics = n_critics
         self.n_runs = n_runs
         n_in = layout.obs_dim + layout.action_dim
-        if centralized:
+        self.n_ids = 0
+        param_index = None
+        n_params = layout.n_agents  # parameter groups per (critic, run)
+        if share_groups is not None:
+            if not centralized:
+                raise ValueError("Critics can be shared only when they are centralized (centralized_critic=True)")
+            check_share_groups(layout, share_groups)
+            shared = _SharedInputs(layout.obs_slices, share_groups)
+            self.n_ids, n_params = shared.n_ids, len(share_groups)
+            in_mask = np.ones((n_params, n_in + self.n_ids), dtype=np.float32)
+            in_mask[:, n_in:] = shared.masks[:, shared.width :]  # the id columns, for shared groups only
+            param_index = (np.arange(n_critics * n_runs)[:, None] * n_params + shared.group_of[None, :]).ravel()
+            self.register_buffer("agent_ids", th.as_tensor(shared.ids), persistent=False)
+        elif centralized:
             in_mask = np.ones((layout.n_agents, n_in), dtype=np.float32)
         else:
             obs_mask = _block_mask(layout.obs_slices, layout.obs_dim)
             act_mask = _block_mask(layout.action_slices, layout.action_dim)
             in_mask = np.concatenate([obs_mask, act_mask], axis=1)
         in_mask = np.tile(in_mask, (n_critics * n_runs, 1))
-        group_runs = np.tile(np.repeat(np.arange(n_runs), layout.n_agents), n_critics)
+        group_runs = np.tile(np.repeat(np.arange(n_runs), n_params), n_critics)
         self.q_net = GroupedMLP(
             in_mask,
             net_arch,
@@ -131,8 +278,16 @@ class MultiAgentCritic(nn.Module):
             activation_fn,
             group_runs=group_runs,
             generators=generators,
-            group_blocks=np.repeat(np.arange(n_critics * n_runs), layout.n_agents),  # one block per (critic, run)
+            group_blocks=np.repeat(np.arange(n_critics * n_runs), n_params),  # one block per (critic, run)
+            param_index=param_index,
         )
+
+    def _with_ids(self, x: th.Tensor) -> th.Tensor:
+        """(..., n_agents, batch, dim) inputs with each agent's one-hot id appended (shared critics)."""
+        if not self.n_ids:
+            return x
+        ids = self.agent_ids.unsqueeze(-2).expand(*x.shape[:-1], self.n_ids)
+        return th.cat([x, ids], dim=-1)
 
     def forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """
@@ -143,8 +298,8 @@ class MultiAgentCritic(nn.Module):
         x = _split_runs(th.cat([obs, actions], dim=-1), self.n_runs)
         runs, batch, dim = x.shape
         groups = self.n_critics * runs * self.n_agents
-        x = x.unsqueeze(0).unsqueeze(2).expand(self.n_critics, runs, self.n_agents, batch, dim).reshape(groups, batch, dim)
-        return self.q_net(x).view(self.n_critics, runs, self.n_agents, batch)
+        x = self._with_ids(x.unsqueeze(0).unsqueeze(2).expand(self.n_critics, runs, self.n_agents, batch, dim))
+        return self.q_net(x.reshape(groups, batch, -1)).view(self.n_critics, runs, self.n_agents, batch)
 
     def q1_forward(self, obs: th.Tensor, actions: th.Tensor, detach_params: bool = False) -> th.Tensor:
         """
@@ -156,7 +311,7 @@ class MultiAgentCritic(nn.Module):
         :return: (n_runs, n_agents, batch)
         """
         runs, batch, _ = obs.shape
-        x = th.cat([obs.unsqueeze(1).expand(runs, self.n_agents, batch, obs.shape[-1]), actions], dim=-1)
+        x = self._with_ids(th.cat([obs.unsqueeze(1).expand(runs, self.n_agents, batch, obs.shape[-1]), actions], dim=-1))
         x = x.reshape(runs * self.n_agents, batch, x.shape[-1])
         q = self.q_net(x, groups=slice(0, runs * self.n_agents), detach_params=detach_params)
         return q.view(runs, self.n_agents, batch)
@@ -180,6 +335,8 @@ class MADDPGPolicy(BasePolicy):
     :param n_runs: Independent runs packed in the stacked tensors (set by MADDPG; 1 for an ordinary model).
     :param run_seeds: Seed of each run's initial weights (set by MADDPG; None: torch's global generator).
     :param normalize_images: Must be False (accepted so that SB3's ``BasePolicy.load`` can rebuild the policy).
+    :param share_actors: Groups of agent indices that share one actor (set by MADDPG from ``share_parameters``).
+    :param share_critics: Groups of agent indices that share one critic (set by MADDPG with ``share_critics``).
     """
 
     def __init__(
@@ -197,6 +354,8 @@ class MADDPGPolicy(BasePolicy):
         n_runs: int = 1,
         run_seeds: list[int] | None = None,
         normalize_images: bool = False,
+        share_actors: list[list[int]] | None = None,
+        share_critics: list[list[int]] | None = None,
     ):
         if normalize_images:
             raise ValueError("MADDPGPolicy works on vector observations: normalize_images must be False")
@@ -230,7 +389,10 @@ class MADDPGPolicy(BasePolicy):
             raise ValueError(f"n_runs must be >= 1 with one seed per run; got n_runs={n_runs}, run_seeds={run_seeds}")
         self.n_runs = n_runs
         self.run_seeds = None if run_seeds is None else [int(seed) for seed in run_seeds]
-        self._actor_kwargs = dict(layout=agent_layout, net_arch=actor_arch, activation_fn=activation_fn, n_runs=n_runs)
+        self.share_actors, self.share_critics = share_actors, share_critics
+        self._actor_kwargs = dict(
+            layout=agent_layout, net_arch=actor_arch, activation_fn=activation_fn, n_runs=n_runs, share_groups=share_actors
+        )
         self._critic_kwargs = dict(
             layout=agent_layout,
             net_arch=critic_arch,
@@ -238,6 +400,7 @@ class MADDPGPolicy(BasePolicy):
             n_critics=n_critics,
             centralized=centralized_critic,
             n_runs=n_runs,
+            share_groups=share_critics,
         )
         self._build(lr_schedule)
 
@@ -279,6 +442,8 @@ class MADDPGPolicy(BasePolicy):
                 lr_schedule=self._dummy_schedule,
                 n_runs=self.n_runs,
                 run_seeds=self.run_seeds,
+                share_actors=self.share_actors,
+                share_critics=self.share_critics,
             )
         )
         return data
