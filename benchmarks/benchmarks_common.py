@@ -72,3 +72,31 @@ def describe_backend() -> str:
         f"{cpu}; torch {th.__version__}, {th.get_num_threads()} thread(s); GEMM 100x400 @ 400x300 GFLOP/s: {text}; "
         f"path: layers with >= {ONEDNN_MIN_WEIGHTS} weights (400-300) {big}, smaller (64-64) batched baddbmm"
     )
+
+
+def train_and_evaluate(make_env, steps: int, seed: int, eval_episodes: int, noise: bool = True, **kwargs):  # type: ignore[no-untyped-def]
+    """
+    Train MADDPG (64-64, batch 256, learning after 1,000 steps, Gaussian noise 0.1 when ``noise``) for ``steps`` on
+    ``make_env()`` and evaluate it deterministically on a fresh env seeded ``1000 + seed``.
+
+    :return: The model, its mean evaluation return and the training time in seconds.
+    """
+    import time
+
+    import numpy as np
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    from sb3_macb import MADDPG
+
+    env = make_env()
+    dim = env.action_space.shape[0]
+    action_noise = NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim)) if noise else None
+    model = MADDPG("MlpPolicy", env, action_noise=action_noise, learning_starts=1000, batch_size=256, seed=seed,
+                   policy_kwargs=dict(net_arch=[64, 64]), **kwargs)  # fmt: skip
+    start = time.perf_counter()
+    model.learn(steps)
+    seconds = time.perf_counter() - start
+    eval_env = make_env()
+    eval_env.reset(seed=1000 + seed)
+    return model, evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes)[0], seconds

@@ -9,14 +9,13 @@ Gumbel-softmax (see ``MultiAgentActor``); continuous ones Gaussian action noise 
 
 import argparse
 import statistics
-import time
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.noise import NormalActionNoise
 
+from benchmarks_common import train_and_evaluate
 from sb3_macb import MADDPG, make_joint_env
 
 
@@ -49,17 +48,11 @@ def main() -> None:
     for continuous in (False, True):
         learned, random_, times = [], [], []
         for seed in args.seeds:
-            env = make_env(continuous)
-            dim = env.action_space.shape[0]
-            noise = NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim)) if continuous else None
-            model = MADDPG("MlpPolicy", env, action_noise=noise, learning_starts=1000, batch_size=256, seed=seed,
-                           policy_kwargs=dict(net_arch=[64, 64]))  # fmt: skip
-            start = time.perf_counter()
-            model.learn(args.steps)
-            times.append(time.perf_counter() - start)
-            eval_env = make_env(continuous)
-            eval_env.reset(seed=1000 + seed)
-            learned.append(evaluate_policy(model, eval_env, n_eval_episodes=args.eval_episodes)[0])
+            model, result, seconds = train_and_evaluate(
+                lambda: make_env(continuous), args.steps, seed, args.eval_episodes, noise=continuous
+            )
+            learned.append(result)
+            times.append(seconds)
             random_env = make_env(continuous)
             random_env.reset(seed=1000 + seed)
             random_.append(evaluate_policy(RandomPolicy(model, seed), random_env, n_eval_episodes=args.eval_episodes)[0])

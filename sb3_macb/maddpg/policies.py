@@ -166,8 +166,10 @@ class MultiAgentActor(nn.Module):
         for row, sl in enumerate(slices):
             pad_idx[row, : sl.stop - sl.start] = np.arange(sl.start, sl.stop)
             valid[row, : sl.stop - sl.start] = True
-        self.register_buffer("pad_idx", th.as_tensor(pad_idx), persistent=False)
-        self.register_buffer("pad_valid", th.as_tensor(valid), persistent=False)
+        self.discrete_shape = (len(slices), width)
+        self.register_buffer("pad_idx", th.as_tensor(pad_idx.ravel()), persistent=False)
+        self.register_buffer("pad_fill", th.as_tensor(np.where(valid, 0.0, -np.inf).astype(np.float32)), persistent=False)
+        self.register_buffer("pad_valid", th.as_tensor(np.flatnonzero(valid.ravel())), persistent=False)
         self.register_buffer("discrete_dims", th.as_tensor(np.flatnonzero(mask)), persistent=False)
 
     def raw(self, obs: th.Tensor) -> th.Tensor:
@@ -209,12 +211,12 @@ class MultiAgentActor(nn.Module):
         if not self.has_discrete:
             return continuous
         logits = raw if gumbel is None else raw + gumbel
-        grid = logits[..., self.pad_idx].masked_fill(~self.pad_valid, -th.inf)  # (..., n_discrete, max_n)
-        hard = nn.functional.one_hot(grid.argmax(dim=-1), grid.shape[-1]).to(raw.dtype)
+        grid = logits.index_select(-1, self.pad_idx).view(*logits.shape[:-1], *self.discrete_shape) + self.pad_fill
+        hard = nn.functional.one_hot(grid.argmax(dim=-1), grid.shape[-1]).to(raw.dtype)  # (..., n_discrete, max_n)
         if straight_through:
             soft = th.softmax(grid / self.gumbel_temperature, dim=-1)
             hard = hard - soft.detach() + soft
-        one_hot = hard[..., self.pad_valid]  # (..., n_discrete_dims), in the order of discrete_dims
+        one_hot = hard.flatten(-2).index_select(-1, self.pad_valid)  # (..., n_discrete_dims), as discrete_dims
         scattered = continuous.new_zeros(continuous.shape).index_copy(-1, self.discrete_dims, 2.0 * one_hot - 1.0)
         return th.where(self.discrete_mask, scattered, continuous)
 
