@@ -176,8 +176,24 @@ def test_a_pack_with_discrete_agents_is_bit_identical_to_its_solo_runs():
             assert th.equal(a, b)
 
 
-def test_packs_refuse_shared_parameters_for_now():
+@pytest.mark.parametrize("share_critics", [False, True])
+def test_a_pack_with_shared_networks_is_bit_identical_to_its_solo_runs(share_critics):
     from mpe2 import simple_spread_v3
+    from stable_baselines3.common.env_util import make_vec_env
 
-    with pytest.raises(ValueError, match="not supported in packs"):
-        MADDPG("MlpPolicy", simple_spread_v3.parallel_env(N=3, continuous_actions=True), n_runs=2, share_parameters="all")
+    from sb3_macb import make_joint_env
+
+    def run(seeds):
+        env = make_vec_env(lambda: make_joint_env(simple_spread_v3.parallel_env(N=3, continuous_actions=True, max_cycles=10)),
+                           n_envs=len(seeds))  # fmt: skip
+        model = MADDPG("MlpPolicy", env, n_runs=len(seeds), run_seeds=seeds, batch_size=8, learning_starts=20 * len(seeds),
+                       policy_kwargs=dict(net_arch=[16]), share_parameters="all", share_critics=share_critics,
+                       action_noise=[NormalActionNoise(np.zeros(15), 0.1 * np.ones(15)) for _ in seeds])  # fmt: skip
+        model.learn(80 * len(seeds))
+        return model
+
+    pack = run([5, 6])
+    for k, seed in enumerate([5, 6]):
+        solo, member = run([seed]), pack.get_run(k)
+        for a, b in zip([*solo.actor.parameters(), *solo.critic.parameters()], [*member.actor.parameters(), *member.critic.parameters()]):
+            assert th.equal(a, b)

@@ -302,6 +302,23 @@ class GroupedMLP(nn.Module):
         weights[-1] = weights[-1] * out_mask
         biases[-1] = biases[-1] * out_bias_mask
 
+        if self.param_index is not None:
+            # shared parameters: each bias enters as a weight column on a constant input, so that its gradient is
+            # summed over the batch inside the group's own product (a sum over a (G, batch, out) tensor rounds
+            # differently with the number of groups G, and a pack's run must not depend on its neighbours)
+            # differently with the number of groups G, and a pack's run must not depend on its neighbours). MKL's
+            # batched GEMM may also round a matrix differently by its position in the batch, so the products run
+            # one block (one run, or one critic of one run) at a time: the same calls as the run alone.
+            h = x.expand(len(weights[0]), *x.shape[-2:]) if x.dim() == 2 else x
+            chunk = len(self.param_index) // len(self.block_bounds)  # evaluation groups per block
+            for layer, (weight, bias) in enumerate(zip(weights, biases)):
+                if layer > 0:
+                    h = self.activation(h)
+                h = th.cat([h, h.new_ones(*h.shape[:-1], 1)], dim=-1)
+                w = th.cat([weight, bias.unsqueeze(-1)], dim=-1)
+                h = th.cat([th.bmm(a, b.transpose(1, 2)) for a, b in zip(h.split(chunk), w.split(chunk))])
+            return h.sum(dim=0) if self.sum_groups else h
+
         if x.dim() == 2:
             # same input for all groups: one broadcast matmul, no copies
             h = th.matmul(x, weights[0].transpose(1, 2)).add_(biases[0].unsqueeze(1))

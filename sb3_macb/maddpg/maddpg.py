@@ -157,11 +157,6 @@ class MADDPG(TD3):
             raise ValueError("share_critics=True shares critics in the groups of share_parameters: give share_parameters too")
         if share_critics and not centralized_critic:
             raise ValueError("Critics can be shared only when they are centralized (centralized_critic=True)")
-        if share_parameters is not None and n_runs > 1:
-            raise ValueError(
-                "share_parameters is not supported in packs (n_runs > 1) yet: a packed run with shared networks was not "
-                "bit-identical to its solo run in our tests; train such runs one per model"
-            )
         self.share_parameters = [list(g) for g in share_parameters] if isinstance(share_parameters, (list, tuple)) else share_parameters
         self.share_critics = bool(share_critics)
         if isinstance(exploration, (list, tuple)):
