@@ -405,3 +405,26 @@ def test_rl_zoo3_keys_the_runs_cannot_restore_are_refused_before_anything_is_wri
     folder = run_train(tmp_path, "-n", "100", "--variant", "fast", "-params", "n_envs:2", "learning_starts:10")
     assert list(np.load(Path(folder) / "evaluations.npz")["timesteps"]) == [50, 100]  # every 50 steps over both envs
     assert MADDPG.load(Path(folder) / "model.zip").n_envs == 2
+
+
+@pytest.mark.parametrize("pack", [0, 1])
+def test_a_trial_failed_by_another_worker_while_it_ran_is_run_again(tmp_path, monkeypatch, pack):
+    from sb3_macb.zoo.sweep import work
+
+    storage_url = f"sqlite:///{tmp_path / 'sweep.db'}"
+    config = sweep_config(tmp_path, n_timesteps=40, betas=(0.5,), ks=(16,))
+    calls = []
+
+    def fail_the_running_trial():  # what fail_stale_trials does in another worker when a heartbeat comes late
+        if not calls:
+            study = optuna.load_study(study_name="late", storage=storage_url)
+            running = study.get_trials(states=(TrialState.RUNNING,))
+            study._storage.set_trial_state_values(running[0]._trial_id, TrialState.FAIL)
+        calls.append(1)
+
+    real_trial, real_pack = sweep_module.run_trial, sweep_module.run_pack
+    monkeypatch.setattr(sweep_module, "run_trial", lambda *a: (real_trial(*a), fail_the_running_trial())[0])
+    monkeypatch.setattr(sweep_module, "run_pack", lambda *a: (real_pack(*a), fail_the_running_trial())[0])
+    assert work(str(config), storage_url, "late", str(tmp_path / "logs"), pack=pack, enqueue_wait=0.5) == 0
+    assert len(calls) == 2  # the point ran again after its first result was refused
+    check_grid_done_once(storage_url, "late", 1)

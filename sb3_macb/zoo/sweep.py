@@ -423,7 +423,12 @@ def work(
             except Exception as exc:  # noqa: BLE001 (the points are failed and retried; the worker goes on)
                 print(f"sb3-macb sweep: a pack failed: {type(exc).__name__}: {exc}", file=sys.stderr)
         elif waiting:
-            study.optimize(objective, n_trials=1, catch=(Exception,))  # a failing point is retried, then reported
+            try:
+                study.optimize(objective, n_trials=1, catch=(Exception,))  # a failing point is retried, then reported
+            except (ValueError, optuna.exceptions.UpdateFinishedTrialError) as exc:
+                if not _finished_elsewhere(exc):
+                    raise
+                print(f"sb3-macb sweep: {_LATE}", file=sys.stderr)
         elif trials:
             time.sleep(poll)
         else:
@@ -457,10 +462,26 @@ def _work_on_pack(
             study.tell(trial, state=TrialState.FAIL)
         raise
     for (trial, _), (success_rate, count1, run_folder) in zip(claimed, results):
-        trial.set_user_attr("success_rate", success_rate)
-        trial.set_user_attr("count1_fraction", count1)
-        trial.set_user_attr("run_folder", run_folder)
-        study.tell(trial, success_rate)
+        try:
+            trial.set_user_attr("success_rate", success_rate)
+            trial.set_user_attr("count1_fraction", count1)
+            trial.set_user_attr("run_folder", run_folder)
+            study.tell(trial, success_rate)
+        except (ValueError, RuntimeError) as exc:
+            if not _finished_elsewhere(exc):
+                raise
+            print(f"sb3-macb sweep: trial {trial.number}: {_LATE}", file=sys.stderr)
+
+
+_LATE = (
+    "a trial was failed by another worker while it ran (its heartbeat came late, e.g. on an overloaded machine); "
+    "its result is dropped and its grid point queued again"
+)
+
+
+def _finished_elsewhere(exc: Exception) -> bool:
+    """Whether ``exc`` is Optuna refusing to report a trial that another worker has already finished (failed)."""
+    return isinstance(exc, optuna.exceptions.UpdateFinishedTrialError) or str(exc).startswith("Cannot tell a")
 
 
 def main(argv: list[str] | None = None) -> int:
