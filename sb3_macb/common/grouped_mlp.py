@@ -280,6 +280,9 @@ class GroupedMLP(nn.Module):
         if detach_params:
             weights = [w.detach() for w in weights]
             biases = [b.detach() for b in biases]
+        large = self._large and self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32
+        if self.param_index is not None and not large:
+            return self._shared_forward(x, weights, biases, groups, in_mask, out_mask, out_bias_mask)
         if self.param_index is not None:  # shared parameters: each evaluation group reads its parameter group
             index = self.param_index
             weights = [_SharedGather.apply(w, index, self.param_members) for w in weights]
@@ -292,7 +295,7 @@ class GroupedMLP(nn.Module):
             biases = [b[groups] for b in biases]
             in_mask = None if in_mask is None else in_mask[groups]
             out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
-        if self._large and self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32:
+        if large:
             # masked weights are zero already; the Function masks their gradients instead of the weights
             out_masks = None if self._full_out else (out_mask, out_bias_mask)
             return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, *weights, *biases)
@@ -302,23 +305,6 @@ class GroupedMLP(nn.Module):
         weights[-1] = weights[-1] * out_mask
         biases[-1] = biases[-1] * out_bias_mask
 
-        if self.param_index is not None:
-            # shared parameters: each bias enters as a weight column on a constant input, so that its gradient is
-            # summed over the batch inside the group's own product (a sum over a (G, batch, out) tensor rounds
-            # differently with the number of groups G, and a pack's run must not depend on its neighbours)
-            # differently with the number of groups G, and a pack's run must not depend on its neighbours). MKL's
-            # batched GEMM may also round a matrix differently by its position in the batch, so the products run
-            # one block (one run, or one critic of one run) at a time: the same calls as the run alone.
-            h = x.expand(len(weights[0]), *x.shape[-2:]) if x.dim() == 2 else x
-            chunk = len(self.param_index) // len(self.block_bounds)  # evaluation groups per block
-            for layer, (weight, bias) in enumerate(zip(weights, biases)):
-                if layer > 0:
-                    h = self.activation(h)
-                h = th.cat([h, h.new_ones(*h.shape[:-1], 1)], dim=-1)
-                w = th.cat([weight, bias.unsqueeze(-1)], dim=-1)
-                h = th.cat([th.bmm(a, b.transpose(1, 2)) for a, b in zip(h.split(chunk), w.split(chunk))])
-            return h.sum(dim=0) if self.sum_groups else h
-
         if x.dim() == 2:
             # same input for all groups: one broadcast matmul, no copies
             h = th.matmul(x, weights[0].transpose(1, 2)).add_(biases[0].unsqueeze(1))
@@ -326,4 +312,43 @@ class GroupedMLP(nn.Module):
             h = th.baddbmm(biases[0].unsqueeze(1), x, weights[0].transpose(1, 2))
         for weight, bias in zip(weights[1:], biases[1:]):
             h = th.baddbmm(bias.unsqueeze(1), self.activation(h), weight.transpose(1, 2))
+        return h.sum(dim=0) if self.sum_groups else h
+
+    def _shared_forward(
+        self,
+        x: th.Tensor,
+        weights: list[th.Tensor],
+        biases: list[th.Tensor],
+        groups: slice | None,
+        in_mask: th.Tensor | None,
+        out_mask: th.Tensor,
+        out_bias_mask: th.Tensor,
+    ) -> th.Tensor:
+        """
+        The batched path with shared parameters. Each bias enters as a weight column on a constant input, so that its
+        gradient is summed over the batch inside the group's own product (a sum over a (G, batch, out) tensor rounds
+        differently with the number of groups G, and a pack's run must not depend on its neighbours). MKL's batched
+        GEMM may also round a matrix differently by its position in the batch, so the products run one block (one
+        run, or one critic of one run) at a time: the same calls as the run alone. Masks and the bias column are
+        applied to the parameter groups, before they are gathered for the evaluation groups.
+        """
+        if in_mask is not None:
+            weights[0] = weights[0] * in_mask
+        weights[-1] = weights[-1] * out_mask
+        biases[-1] = biases[-1] * out_bias_mask
+        assert self.param_index is not None
+        augmented = [_SharedGather.apply(th.cat([w, b.unsqueeze(-1)], dim=-1), self.param_index, self.param_members)
+                     for w, b in zip(weights, biases)]  # fmt: skip
+        if groups is not None:
+            augmented = [w[groups] for w in augmented]
+        h = x.expand(len(augmented[0]), *x.shape[-2:]) if x.dim() == 2 else x
+        chunk = len(self.param_index) // len(self.block_bounds)  # evaluation groups per block
+        for layer, w in enumerate(augmented):
+            if layer > 0:
+                h = self.activation(h)
+            h = th.cat([h, h.new_ones(*h.shape[:-1], 1)], dim=-1)
+            if len(h) <= chunk:
+                h = th.bmm(h, w.transpose(1, 2))
+            else:
+                h = th.cat([th.bmm(a, b.transpose(1, 2)) for a, b in zip(h.split(chunk), w.split(chunk))])
         return h.sum(dim=0) if self.sum_groups else h
