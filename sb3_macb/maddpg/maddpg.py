@@ -133,7 +133,8 @@ class MADDPG(TD3):
     ):
         if policy_kwargs and ({"agent_layout", "centralized_critic", "share_actors", "share_critics"} & set(policy_kwargs)):
             raise ValueError(
-                "Pass centralized_critic to MADDPG itself, not in policy_kwargs; the agent layout is read from the env"
+                "Pass centralized_critic to MADDPG itself (and share_parameters, share_critics), not in policy_kwargs; "
+                "the agent layout is read from the env"
             )
         if replay_buffer_class is not None and not issubclass(replay_buffer_class, MultiAgentReplayBuffer):
             raise TypeError(
@@ -254,7 +255,7 @@ class MADDPG(TD3):
         """
         assert self._run_rngs is not None
         step = self.envs_per_run
-        discrete = self.agent_layout.discrete_action_mask if self.actor.has_discrete else None  # type: ignore[union-attr]
+        discrete = self._discrete_mask
         if self.num_timesteps < learning_starts:
             low, high = self.action_space.low, self.action_space.high  # type: ignore[attr-defined]
             unscaled = np.stack([self._run_rngs[e // step].uniform(low, high) for e in range(n_envs)]).astype(np.float32)
@@ -393,6 +394,8 @@ class MADDPG(TD3):
         self._actor_target_params = list(self.actor_target.parameters())
         self._critic_params = list(self.critic.parameters())
         self._critic_target_params = list(self.critic_target.parameters())
+        # the joint action's entries of discrete agents (None: every agent is continuous), read at every step
+        self._discrete_mask = layout.discrete_action_mask if self.actor.has_discrete else None
 
     def _share_groups(self, layout: AgentLayout) -> list[list[int]] | None:
         """
@@ -578,6 +581,7 @@ class MADDPG(TD3):
         return [
             *super()._excluded_save_params(),
             "_action_masks",
+            "_discrete_mask",
             "_actor_params",
             "_actor_target_params",
             "_critic_params",

@@ -227,8 +227,9 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     hyperparams = load_hyperparams(args.env, args.conf_file, variants, {**(overrides or {}), **params})
     n_timesteps = args.n_timesteps if args.n_timesteps > 0 else int(hyperparams.get("n_timesteps", 800_000))
     env_kwargs = _pairs(args.env_kwargs, "--env-kwargs", args.unsafe_eval)
-    if args.resume and args.seed < 0:
-        args.seed = _saved_seed(args.resume) if _saved_seed(args.resume) is not None else args.seed
+    if args.resume and args.seed < 0:  # a random seed is the one the run recorded
+        saved = _saved_seed(args.resume)
+        args.seed = args.seed if saved is None else saved
     if args.seed < 0:
         args.seed = int(np.random.randint(2**31 - 1))
     tensorboard_log = args.tensorboard_log
