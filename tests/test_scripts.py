@@ -41,6 +41,9 @@ def test_episodes_to_threshold_uses_the_moving_average():
     # the 4-evaluation average first reaches 0.75 at the 8th evaluation (three of the last four are 1.0)
     assert summary.episodes_to(successes, episodes, 0.75, 4) == (56.0, True)
     assert summary.episodes_to(successes, episodes, 0.75, 1) == (42.0, True)
+    # a mean exactly at the threshold reaches it, although its floating-point sum may land just below
+    exact = np.stack([np.arange(10) < 10 * r for r in [0.0] * 20 + [1.0] * 180 + [0.0] * 20])
+    assert summary.episodes_to(exact, np.arange(1, 221), 0.9, 200) == (200.0, True)
     # never reached: the whole budget, flagged
     assert summary.episodes_to(successes, episodes, 1.01, 1) == (70.0, False)
 
@@ -98,3 +101,70 @@ def test_kaplan_meier_median_counts_censored_runs():
     assert km([100, 400, 400], [True, False, False]) is None  # one of three reached it: no median
     assert km([100, 150, 400, 400], [True, True, False, False]) == 150  # half reached it
     assert km([50, 300, 400], [False, True, True]) == 300  # censored early: S(300) = 1 - 1/2
+
+
+def write_headline_run(folder: Path, any_step: list[float], final_step: list[float], complete: bool = True) -> None:
+    """A run as reproduce.py files it: evaluations.npz with both success metrics, and run.json."""
+    def block(rates):
+        return np.array([[i < round(10 * r) for i in range(10)] for r in rates], dtype=bool)
+
+    episodes = np.arange(1, len(any_step) + 1) * 100
+    folder.mkdir(parents=True, exist_ok=True)
+    np.savez(folder / "evaluations.npz", timesteps=20 * episodes, episodes=episodes, successes=block(any_step),
+             final_successes=block(final_step), results=np.zeros((len(any_step), 10)))  # fmt: skip
+    (folder / "run.json").write_text(f'{{"complete": {str(complete).lower()}}}')
+
+
+def test_headline_analysis_applies_the_registered_rules(tmp_path):
+    analysis = load_script("headline_analysis")
+    reference = tmp_path / "reference.json"
+    reference.write_text('{"random_landmark": {"final_step": 0.35}, "landmark_tour": {"final_step": 0.18},'
+                         ' "oracle": {"final_step": 1.0}}')  # fmt: skip
+    task = tmp_path / "task"
+    n = 1000  # evaluations of 100 episodes each; 90% needs 200 consecutive evaluations averaging 0.9
+    for seed in range(3):
+        write_headline_run(task / "maddpg" / f"seed_{seed}", [0.4] * n, [0.3] * n)
+        # MACB reaches 90% at evaluations 200, 210, 240 (episodes 20000, 21000, 24000), and communicates
+        start = 30 * seed
+        write_headline_run(task / "macb_joint" / f"seed_{seed}", [0.0] * start + [1.0] * (n - start), [0.9] * n)
+        write_headline_run(task / "macb_constant" / f"seed_{seed}", [0.9, 1.0, 1.0, 1.0, 1.0] * (n // 5), [0.3] * n)
+    write_headline_run(task / "macb_k32" / "seed_0", [0.2] * n, [0.1] * n, complete=False)
+    # a variant without its registered seeds complete makes every decision interim
+    assert "C1, the paper's claim: INTERIM" in analysis.analyse(str(task), 3, str(reference))
+    for seed in range(3):
+        write_headline_run(task / "macb_k32" / f"seed_{seed}", [0.2] * n, [0.1] * n, complete=seed > 0)
+    report = analysis.analyse(str(task), 3, str(reference))
+    assert "C1, the paper's claim: INTERIM" in report  # seed 0 of macb_k32 still runs
+    write_headline_run(task / "macb_k32" / "seed_0", [0.2] * n, [0.1] * n)
+    report = analysis.analyse(str(task), 3, str(reference))
+    assert "C1, the paper's claim: **confirmed**" in report
+    assert "Kaplan-Meier median 21000 episodes; MADDPG median 100000" in report
+    # MACB +0.02 any-step (1.0 against 0.98) and +0.6 final-step: one difference below 0.05
+    assert "C2, macb_joint against macb_constant: **attributed to the reward offset**" in report
+    assert "macb_constant 0 of 3; macb_joint 3 of 3; macb_k32 0 of 3; maddpg 0 of 3." in report
+    assert "C2, macb_k32 against macb_constant: **not credited: counting is worse than the offset alone**" in report
+
+    # with one seed fewer than registered, every decision is interim
+    assert "C1, the paper's claim: INTERIM" in analysis.analyse(str(task), 4, str(reference))
+
+    # one MACB seed that never reaches 90%: not every seed, but the median still at most half of MADDPG's; then two
+    write_headline_run(task / "macb_joint" / "seed_2", [0.5] * n, [0.9] * n)
+    assert "**inconclusive**" in analysis.analyse(str(task), 3, str(reference))
+    write_headline_run(task / "macb_joint" / "seed_1", [0.5] * n, [0.9] * n)
+    assert "**refuted**" in analysis.analyse(str(task), 3, str(reference))
+
+
+@pytest.mark.parametrize(
+    "macb, constant, decision",
+    [
+        ([(0.8, 0.7)] * 3, [(0.6, 0.5)] * 3, "counting credited"),
+        ([(0.8, 0.7), (0.8, 0.7), (0.55, 0.45)], [(0.6, 0.5)] * 3, "not credited: not every seed"),
+        ([(0.5, 0.4)] * 3, [(0.6, 0.5)] * 3, "not credited: counting is worse than the offset alone"),
+        ([(0.63, 0.7)] * 3, [(0.6, 0.5)] * 3, "attributed to the reward offset"),
+        ([(0.7, 0.4)] * 3, [(0.6, 0.5)] * 3, "attributed to the reward offset"),
+    ],
+)
+def test_headline_c2_outcomes(macb, constant, decision):
+    analysis = load_script("headline_analysis")
+    runs = lambda levels: [analysis.Run(i, 0.0, False, a, f) for i, (a, f) in enumerate(levels)]  # noqa: E731
+    assert analysis.decide_c2(runs(macb), runs(constant))[0] == decision
