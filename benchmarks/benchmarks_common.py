@@ -42,6 +42,8 @@ def gemm_rates(rows: int = 100, n_in: int = 400, n_out: int = 300, repeats: int 
     }
     if _LINEAR is not None:
         calls["onednn"] = (lambda: _LINEAR(x, w, b, "none", [], ""), flops)
+        x16, w16, b16 = x.bfloat16(), w.bfloat16(), b.bfloat16()
+        calls["onednn_bf16"] = (lambda: _LINEAR(x16, w16, b16, "none", [], ""), flops)  # policy_kwargs precision="bf16"
     rates = {}
     for name, (fn, work) in calls.items():
         for _ in range(repeats // 10):
@@ -74,10 +76,11 @@ def describe_backend() -> str:
     )
 
 
-def train_and_evaluate(make_env, steps: int, seed: int, eval_episodes: int, noise: bool = True, **kwargs):  # type: ignore[no-untyped-def]
+def train_and_evaluate(make_env, steps: int, seed: int, eval_episodes: int, noise: bool = True, policy_kwargs=None, **kwargs):  # type: ignore[no-untyped-def]
     """
     Train MADDPG (64-64, batch 256, learning after 1,000 steps, Gaussian noise 0.1 when ``noise``) for ``steps`` on
-    ``make_env()`` and evaluate it deterministically on a fresh env seeded ``1000 + seed``.
+    ``make_env()`` and evaluate it deterministically on a fresh env seeded ``1000 + seed``. ``policy_kwargs`` are
+    added to ``net_arch=[64, 64]`` (and may replace it).
 
     :return: The model, its mean evaluation return and the training time in seconds.
     """
@@ -93,7 +96,7 @@ def train_and_evaluate(make_env, steps: int, seed: int, eval_episodes: int, nois
     dim = env.action_space.shape[0]
     action_noise = NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim)) if noise else None
     model = MADDPG("MlpPolicy", env, action_noise=action_noise, learning_starts=1000, batch_size=256, seed=seed,
-                   policy_kwargs=dict(net_arch=[64, 64]), **kwargs)  # fmt: skip
+                   policy_kwargs={"net_arch": [64, 64], **(policy_kwargs or {})}, **kwargs)  # fmt: skip
     start = time.perf_counter()
     model.learn(steps)
     seconds = time.perf_counter() - start

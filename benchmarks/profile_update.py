@@ -6,6 +6,7 @@ calls per update and the operators with the most self CPU time.
     python benchmarks/profile_update.py                   # 400-300, one thread, the package's GEMM path
     python benchmarks/profile_update.py --net 64 64 --updates 300
     python benchmarks/profile_update.py --no-onednn       # force the batched (MKL/bmm) path
+    python benchmarks/profile_update.py --precision bf16  # products in bfloat16 (policy_kwargs precision)
 """
 
 import argparse
@@ -27,6 +28,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--top", type=int, default=15)
     parser.add_argument("--no-onednn", action="store_true", help="use the batched path for every layer size")
+    parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
     args = parser.parse_args()
     th.set_num_threads(args.threads)
     GroupedMLP.use_onednn = not args.no_onednn
@@ -35,7 +37,7 @@ def main() -> None:
     env = speaker_listener()
     dim = env.action_space.shape[0]
     model = MADDPG("MlpPolicy", env, action_noise=NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim)), batch_size=100,
-                   learning_starts=100, seed=0, device="cpu", policy_kwargs=dict(net_arch=args.net))  # fmt: skip
+                   learning_starts=100, seed=0, device="cpu", policy_kwargs=dict(net_arch=args.net, precision=args.precision))  # fmt: skip
     model.learn(300)
     model.train(20, 100)  # warm-up
     start = time.perf_counter()
@@ -46,7 +48,7 @@ def main() -> None:
     events = prof.key_averages()
     copies = sum(e.count for e in events if e.key == "aten::copy_") / args.updates
     total = sum(e.self_cpu_time_total for e in events)
-    print(f"net={args.net} threads={args.threads} onednn={GroupedMLP.use_onednn} torch={th.__version__}")
+    print(f"net={args.net} threads={args.threads} onednn={GroupedMLP.use_onednn} precision={args.precision} torch={th.__version__}")
     print(f"backend: {describe_backend()}")
     print(f"{per_update:.2f} ms per update (unprofiled); aten::copy_ calls per update: {copies:.0f}")
     print("| operator | self CPU % | calls per update | us per call |")

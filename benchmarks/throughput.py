@@ -7,6 +7,7 @@ agent). Rounds are interleaved so that machine drift hits every configuration al
 
     python benchmarks/throughput.py                  # one thread, 400-300 and 64-64, 4-agent task, MACB
     python benchmarks/throughput.py --threads 2 --steps 2000 --rounds 5
+    python benchmarks/throughput.py --quick --bf16   # adds MADDPG with policy_kwargs=dict(precision="bf16")
 """
 
 import argparse
@@ -26,8 +27,12 @@ from benchmarks_common import describe_backend, speaker_listener, spread, spread
 from sb3_macb import MACB, MADDPG
 
 
-def make_model(kind: str, net: list[int], batch_size: int, seed: int, **kwargs: Any) -> BaseAlgorithm:
+def make_model(
+    kind: str, net: list[int], batch_size: int, seed: int, precision: str = "fp32", **kwargs: Any
+) -> BaseAlgorithm:
     common = dict(batch_size=batch_size, learning_starts=100, seed=seed, device="cpu", policy_kwargs=dict(net_arch=net))
+    if precision != "fp32":
+        common["policy_kwargs"]["precision"] = precision
     if kind == "ddpg":
         env = gym.make("Pendulum-v1")
         noise = NormalActionNoise(np.zeros(1), 0.1 * np.ones(1))
@@ -62,6 +67,8 @@ def main() -> None:
     parser.add_argument("--features", action="store_true",
                         help="discrete actions and parameter sharing instead: discrete vs continuous speaker-listener, "
                         "simple_spread N=3 and N=6 with and without shared actors and critics (64-64)")  # fmt: skip
+    parser.add_argument("--bf16", action="store_true",
+                        help="add MADDPG with its products in bfloat16 (policy_kwargs=dict(precision='bf16'))")  # fmt: skip
     args = parser.parse_args()
     th.set_num_threads(args.threads)
 
@@ -82,6 +89,10 @@ def main() -> None:
                 "MADDPG, simple_spread N=4 (4 agents), 64-64": lambda: make_model("maddpg-4", small, args.batch_size, 0),
             }
         )
+    if args.bf16:
+        configs["MADDPG bf16, speaker-listener, 400-300"] = lambda: make_model("maddpg", big, args.batch_size, 0, "bf16")
+        if not args.quick:
+            configs["MADDPG bf16, speaker-listener, 64-64"] = lambda: make_model("maddpg", small, args.batch_size, 0, "bf16")
     if args.features:
         configs = {
             "MADDPG, speaker-listener, continuous, 64-64": lambda: make_model("maddpg", small, args.batch_size, 0),
@@ -114,6 +125,10 @@ def main() -> None:
             "MADDPG + MACB(k=512), speaker-listener, 400-300",
             "MADDPG, speaker-listener (2 agents), 400-300",
         ),
+        ("MADDPG bf16 / SB3 DDPG, 400-300", "MADDPG bf16, speaker-listener, 400-300", "SB3 DDPG, Pendulum-v1, 400-300"),
+        ("MADDPG bf16 / MADDPG fp32, 400-300", "MADDPG bf16, speaker-listener, 400-300",
+         "MADDPG, speaker-listener (2 agents), 400-300"),
+        ("MADDPG bf16 / MADDPG fp32, 64-64", "MADDPG bf16, speaker-listener, 64-64", "MADDPG, speaker-listener, 64-64"),
     ]
     for label, num, den in ratios:
         if num in med and den in med:

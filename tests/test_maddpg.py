@@ -107,6 +107,77 @@ def test_onednn_and_bmm_paths_agree():
         th.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
 
 
+def _outputs_and_grads(model: MADDPG, obs: th.Tensor, act: th.Tensor) -> list[th.Tensor]:
+    model.policy.zero_grad()
+    q = model.critic(obs, act)
+    pi = model.actor(obs)
+    (q.square().sum() + pi.square().sum()).backward()
+    return [q.detach(), pi.detach(), *[p.grad.clone() for p in model.policy.parameters() if p.grad is not None]]
+
+
+def _close_in_bf16(exact: th.Tensor, low: th.Tensor) -> bool:
+    """bfloat16 keeps 8 bits of mantissa: relative errors of ~1e-2 (fp32 paths agree to ~1e-6)."""
+    return low.dtype == th.float32 and bool((exact - low).norm() <= 0.05 * exact.norm() + 1e-3)
+
+
+@pytest.mark.parametrize(
+    "net_arch, share, onednn",
+    [([128, 96], False, True), ([128, 96], True, True), ([128, 96], False, False), ([128, 96], True, False)],
+)
+def test_bf16_precision_is_close_to_fp32_with_fp32_master_weights(net_arch, share, onednn):
+    from mpe2 import simple_spread_v3
+
+    env_fn = (lambda: simple_spread_v3.parallel_env(N=2, continuous_actions=True)) if share else Rendezvous
+    kwargs = dict(share_parameters="all", share_critics=True) if share else {}
+    models = {
+        precision: MADDPG("MlpPolicy", env_fn(), policy_kwargs=dict(net_arch=net_arch, precision=precision), seed=0,
+                          **kwargs)  # fmt: skip
+        for precision in ("fp32", "bf16")
+    }
+    obs_dim, act_dim = models["fp32"].observation_space.shape[0], models["fp32"].action_space.shape[0]
+    obs, act = th.randn(64, obs_dim), th.randn(64, act_dim)
+    GroupedMLP.use_onednn = onednn  # False: the batched path, as on other devices
+    try:
+        exact, low = (_outputs_and_grads(m, obs, act) for m in models.values())
+        # acting on one observation: float32 products, the same as a float32 model's
+        assert th.equal(models["fp32"].actor(obs[:1]), models["bf16"].actor(obs[:1]))
+    finally:
+        GroupedMLP.use_onednn = True
+    assert len(exact) == len(low) > 2
+    assert all(_close_in_bf16(a, b) for a, b in zip(exact, low))
+    assert any(not th.equal(a, b) for a, b in zip(exact, low))  # the minibatch products really ran in bfloat16
+    assert all(p.dtype == th.float32 for p in models["bf16"].policy.parameters())
+
+
+def test_bf16_leaves_small_networks_in_fp32():
+    models = [MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=[32, 32], precision=p), seed=0)
+              for p in ("fp32", "bf16")]  # fmt: skip
+    obs, act = th.randn(64, 3), th.randn(64, 3)
+    exact, low = (_outputs_and_grads(m, obs, act) for m in models)
+    assert all(th.equal(a, b) for a, b in zip(exact, low))
+
+
+def test_bf16_follows_every_weight_update(tmp_path):
+    env = make_joint_env(Rendezvous())
+    model = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96], precision="bf16"), learning_starts=10,
+                   batch_size=8, action_noise=noise(), seed=0)  # fmt: skip
+    obs, act = th.randn(16, 3), th.randn(16, 3)
+    before = model.critic(obs, act)
+    model.learn(40)  # fused Adam and foreach target updates change the weights in place
+    exact = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96]), seed=1)
+    exact.policy.load_state_dict(model.policy.state_dict())
+    for net in ("critic", "critic_target", "actor", "actor_target"):
+        args = (obs, act) if net.startswith("critic") else (obs,)
+        assert _close_in_bf16(getattr(exact, net)(*args), getattr(model, net)(*args)), net
+    assert not _close_in_bf16(before, model.critic(obs, act))  # (the weights did move)
+    model.save(tmp_path / "bf16")
+    loaded = MADDPG.load(tmp_path / "bf16", env=env)
+    assert loaded.policy.precision == "bf16" and loaded.actor.mu.precision == "bf16"
+    th.testing.assert_close(loaded.critic(obs, act), model.critic(obs, act), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="precision must be one of"):
+        MADDPG("MlpPolicy", env, policy_kwargs=dict(precision="fp16"))
+
+
 def test_per_agent_rewards_in_buffer():
     model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, learning_starts=1000, seed=0)
     model.learn(20)

@@ -14,7 +14,7 @@ COMM = "sb3_macb/CommunicativeNavigation-v0"
 FIELDS = ("timesteps", "results", "successes", "final_successes", "episodes", "num_codes", "count1_fraction")
 
 
-def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None):
+def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision="fp32"):
     """A pack (or a solo run, with one seed) on Communicative Navigation, evaluated every episode."""
     n = len(seeds)
     noises = [NormalActionNoise(np.zeros(5), s * np.ones(5)) for s in (sigmas or [0.1] * n)]
@@ -27,7 +27,7 @@ def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None):
         action_noise=noises,
         batch_size=16,
         learning_starts=40 * n,
-        policy_kwargs=dict(net_arch=list(net_arch)),
+        policy_kwargs=dict(net_arch=list(net_arch), precision=precision),
     )
     callback = MultiAgentEvalCallback(make_eval_vec_env(COMM, 4, seeds), n_eval_episodes=4, eval_freq=20, verbose=0, warn=False)
     model.learn(steps * n, callback=callback)
@@ -58,6 +58,20 @@ def test_every_run_of_a_pack_is_bit_identical_to_its_solo_run(net_arch):
         if exploration is not None:
             assert run.exploration.num_codes == solo.exploration.num_codes
             assert run.exploration.total_count == solo.exploration.total_count == steps
+
+
+def test_a_bf16_pack_is_bit_identical_to_its_solo_runs():
+    # large layers run group by group, so bfloat16 rounding does not depend on the other runs either
+    seeds = [3, 4]
+    pack, pack_cb = train(seeds, [MACB(0.8, 64), None], 100, (128, 96), precision="bf16")
+    for k, (seed, exploration) in enumerate(zip(seeds, [MACB(0.8, 64), None])):
+        solo, solo_cb = train([seed], [exploration], 100, (128, 96), precision="bf16")
+        for name in FIELDS:
+            assert np.array_equal(np.asarray(solo_cb.records[0][name]), np.asarray(pack_cb.records[k][name])), (k, name)
+        run = pack.get_run(k)
+        assert run.policy.precision == "bf16"
+        for a, b in zip(run.policy.state_dict().values(), solo.policy.state_dict().values()):
+            assert th.equal(a, b), k
 
 
 def test_a_run_handed_out_works_alone(tmp_path):

@@ -17,6 +17,8 @@ import numpy as np
 import torch as th
 from torch import nn
 
+PRECISIONS = {"fp32": None, "bf16": th.bfloat16}  # GroupedMLP's precision option: the dtype of the products
+
 # Products with at least this many weights per group and this many rows go through oneDNN's GEMM; smaller ones
 # (where a call's fixed cost dominates, e.g. predict() on one observation) use addmm.
 ONEDNN_MIN_WEIGHTS = 8192
@@ -70,22 +72,27 @@ class _GroupedReluMLP(th.autograd.Function):
         sum_groups: bool,
         in_mask: th.Tensor | None,
         out_masks: tuple[th.Tensor, th.Tensor] | None,
+        low: tuple[th.Tensor, ...] | None,
         *params: th.Tensor,
     ) -> th.Tensor:
-        # The weights arrive unmasked: masked entries are zero and stay zero because their gradient is masked
+        # The weights arrive unmasked: masked entries are zero and stay zero because their gradient is masked.
+        # ``low``: per parameter, a bfloat16 copy to compute with (large layers) or None (the float32 parameter is
+        # used: small products are slower in bfloat16); the gradients go to the float32 parameters either way.
         n_layers = len(params) // 2
+        if low is not None:
+            params = tuple(p if c is None else c for p, c in zip(params, low))
         weights, biases = params[:n_layers], params[n_layers:]
         n_groups = weights[0].shape[0]
         shared_input = x.dim() == 2
-        activations: list[list[th.Tensor]] = []  # per group: input, then each hidden layer's output
+        activations: list[list[th.Tensor]] = []  # per group: each layer's input, in that layer's dtype
         outputs = []
         for g in range(n_groups):
             h = x if shared_input else x[g]
-            acts = [h]
+            acts = []
             for layer in range(n_layers):
+                h = h.to(weights[layer].dtype)
+                acts.append(h)
                 h = _linear(h, weights[layer][g], biases[layer][g], relu=layer < n_layers - 1)
-                if layer < n_layers - 1:
-                    acts.append(h)
             activations.append(acts)
             outputs.append(h)
         ctx.activations = activations if any(ctx.needs_input_grad) else None
@@ -97,8 +104,9 @@ class _GroupedReluMLP(th.autograd.Function):
             out = outputs[0]
             for o in outputs[1:]:
                 out = out + o
-            return out
-        return th.stack(outputs)
+        else:
+            out = th.stack(outputs)
+        return out.to(x.dtype)
 
     @staticmethod
     def backward(ctx: Any, grad_out: th.Tensor) -> tuple[th.Tensor | None, ...]:  # type: ignore[override]
@@ -107,8 +115,8 @@ class _GroupedReluMLP(th.autograd.Function):
         n_groups = weights[0].shape[0]
         needs = ctx.needs_input_grad
         need_x = needs[0]
-        need_w = needs[4 : 4 + n_layers]
-        need_b = needs[4 + n_layers :]
+        need_w = needs[5 : 5 + n_layers]
+        need_b = needs[5 + n_layers :]
         grad_w = [th.empty_like(w) if need else None for w, need in zip(weights, need_w)]
         grad_b = [th.empty(w.shape[:2], dtype=w.dtype, device=w.device) if need else None for w, need in zip(weights, need_b)]
         grad_x_groups = []
@@ -118,7 +126,9 @@ class _GroupedReluMLP(th.autograd.Function):
             grad = grad_out if ctx.sum_groups else grad_out[g]
             for layer in range(n_layers - 1, -1, -1):
                 if layer < n_layers - 1:
-                    grad = th.ops.aten.threshold_backward(grad, acts[layer + 1], 0)
+                    following = acts[layer + 1]  # this layer's ReLU output, as the next layer read it
+                    grad = th.ops.aten.threshold_backward(grad.to(following.dtype), following, 0)
+                grad = grad.to(weights[layer].dtype)
                 if grad_w[layer] is not None:
                     _matmul_nt(grad.t(), acts[layer].t(), out=grad_w[layer][g])
                 if grad_b[layer] is not None:
@@ -126,8 +136,11 @@ class _GroupedReluMLP(th.autograd.Function):
                 if layer > 0 or need_x:
                     grad = _matmul_nt(grad, weights[layer][g].t())
             if need_x:
-                grad_x_groups.append(grad)
+                grad_x_groups.append(grad.to(grad_out.dtype))
         ctx.activations = None
+        # the float32 parameters receive float32 gradients
+        grad_w = [None if g is None else g.to(grad_out.dtype) for g in grad_w]
+        grad_b = [None if g is None else g.to(grad_out.dtype) for g in grad_b]
         if grad_w[0] is not None and ctx.in_mask is not None:
             grad_w[0].mul_(ctx.in_mask)
         if ctx.out_masks is not None:
@@ -138,7 +151,7 @@ class _GroupedReluMLP(th.autograd.Function):
         grad_x = None
         if need_x:
             grad_x = th.stack(grad_x_groups).sum(dim=0) if ctx.shared_input else th.stack(grad_x_groups)
-        return (grad_x, None, None, None, *grad_w, *grad_b)
+        return (grad_x, None, None, None, None, *grad_w, *grad_b)
 
 
 class _SharedGather(th.autograd.Function):
@@ -189,6 +202,13 @@ class GroupedMLP(nn.Module):
     :param param_index: (G',) for parameter sharing: evaluation group ``j`` uses parameter group ``param_index[j]``
         (the masks, runs and blocks above describe the G parameter groups). None: one parameter group per evaluation
         group. Shared parameters receive the sum of their evaluation groups' gradients.
+    :param precision: ``"fp32"`` (default) or ``"bf16"``: compute the products in bfloat16 from float32 master
+        weights (the parameters, their gradients and the optimizer stay float32; outputs are float32). On the oneDNN
+        path only the large layers (at least ``ONEDNN_MIN_WEIGHTS`` weights) of minibatches (at least
+        ``ONEDNN_MIN_ROWS`` rows) run in bfloat16, since smaller products are faster in float32; networks without a
+        large layer (e.g. 64-64) compute exactly as in float32. On the batched path (other devices, activations) the
+        minibatches of networks with a large layer run wholly in bfloat16. Opt-in: it pays where the CPU has native
+        bfloat16 GEMMs (AVX-512 BF16, AMX) and the layers are large.
     """
 
     use_onednn: bool = True  # class-wide switch; the oneDNN path is taken only where it applies
@@ -204,8 +224,13 @@ class GroupedMLP(nn.Module):
         generators: list[th.Generator] | None = None,
         group_blocks: np.ndarray | None = None,
         param_index: np.ndarray | None = None,
+        precision: str = "fp32",
     ):
         super().__init__()
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        self.precision = precision
+        self._low_dtype = PRECISIONS[precision]
         in_mask_t = th.as_tensor(np.asarray(in_mask), dtype=th.float32)
         out_mask_t = th.as_tensor(np.asarray(out_mask), dtype=th.float32)
         n_groups = in_mask_t.shape[0]
@@ -277,29 +302,49 @@ class GroupedMLP(nn.Module):
         # (the ParameterLists' own __getitem__/__iter__ cost more than the small layers' matmuls)
         weights, biases = list(self.weights._parameters.values()), list(self.biases._parameters.values())
         in_mask, out_mask, out_bias_mask = self.in_mask, self.out_mask, self.out_bias_mask
+        large = self._large and self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32
+        # bfloat16 for the large layers of minibatches only: small products (small layers; acting and evaluating on
+        # a few rows) are faster in float32
+        use_low = self._low_dtype is not None and self._large and x.shape[-2] >= ONEDNN_MIN_ROWS
+        low = self._low_params(weights + biases) if use_low and large else None
         if detach_params:
             weights = [w.detach() for w in weights]
             biases = [b.detach() for b in biases]
-        large = self._large and self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32
+        if use_low and not large:
+            return self._low_precision_forward(x, weights, biases, groups, in_mask, out_mask, out_bias_mask)
         if self.param_index is not None and not large:
             return self._shared_forward(x, weights, biases, groups, in_mask, out_mask, out_bias_mask)
         if self.param_index is not None:  # shared parameters: each evaluation group reads its parameter group
             index = self.param_index
             weights = [_SharedGather.apply(w, index, self.param_members) for w in weights]
             biases = [_SharedGather.apply(b, index, self.param_members) for b in biases]
+            low = None if low is None else [None if p is None else p.index_select(0, index) for p in low]
             in_mask = None if in_mask is None else in_mask.index_select(0, index)
             out_mask, out_bias_mask = out_mask.index_select(0, index), out_bias_mask.index_select(0, index)
         if groups is not None:
             # (slicing parameters that need a gradient would cost a zero-filled copy in backward)
             weights = [w[groups] for w in weights]
             biases = [b[groups] for b in biases]
+            low = None if low is None else [None if p is None else p[groups] for p in low]
             in_mask = None if in_mask is None else in_mask[groups]
             out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
         if large:
             # masked weights are zero already; the Function masks their gradients instead of the weights
             out_masks = None if self._full_out else (out_mask, out_bias_mask)
-            return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, *weights, *biases)
+            low_params = None if low is None else tuple(low)
+            return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, low_params, *weights, *biases)
+        return self._batched(x, weights, biases, in_mask, out_mask, out_bias_mask)
 
+    def _batched(
+        self,
+        x: th.Tensor,
+        weights: list[th.Tensor],
+        biases: list[th.Tensor],
+        in_mask: th.Tensor | None,
+        out_mask: th.Tensor,
+        out_bias_mask: th.Tensor,
+    ) -> th.Tensor:
+        """One batched product per layer for all groups (masks applied to the weights)."""
         if in_mask is not None:
             weights[0] = weights[0] * in_mask
         weights[-1] = weights[-1] * out_mask
@@ -313,6 +358,43 @@ class GroupedMLP(nn.Module):
         for weight, bias in zip(weights[1:], biases[1:]):
             h = th.baddbmm(bias.unsqueeze(1), self.activation(h), weight.transpose(1, 2))
         return h.sum(dim=0) if self.sum_groups else h
+
+    def _low_params(self, params: list[th.Tensor]) -> list[th.Tensor | None]:
+        """
+        Low-precision copies of the parameters of large layers (None for the small ones), made at every call: a
+        parameter's version counter would tell when it changed, but fused optimizers (``_fused_adam_``) and
+        ``_foreach_lerp_`` target updates do not move it, so a cached copy could go stale silently.
+        """
+        n_layers = len(params) // 2
+        with th.no_grad():
+            return [None if params[i % n_layers][0].numel() < ONEDNN_MIN_WEIGHTS else p.to(self._low_dtype)
+                    for i, p in enumerate(params)]  # fmt: skip
+
+    def _low_precision_forward(
+        self,
+        x: th.Tensor,
+        weights: list[th.Tensor],
+        biases: list[th.Tensor],
+        groups: slice | None,
+        in_mask: th.Tensor | None,
+        out_mask: th.Tensor,
+        out_bias_mask: th.Tensor,
+    ) -> th.Tensor:
+        """
+        The batched path in low precision (networks with a large layer on other devices or with other activations):
+        the parameters are cast with autograd, so that their gradients arrive in float32.
+        """
+        dtype = self._low_dtype
+        weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
+        in_mask = None if in_mask is None else in_mask.to(dtype)
+        out_mask, out_bias_mask = out_mask.to(dtype), out_bias_mask.to(dtype)
+        if self.param_index is not None:
+            return self._shared_forward(x.to(dtype), weights, biases, groups, in_mask, out_mask, out_bias_mask).float()
+        if groups is not None:
+            weights, biases = [w[groups] for w in weights], [b[groups] for b in biases]
+            in_mask = None if in_mask is None else in_mask[groups]
+            out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
+        return self._batched(x.to(dtype), weights, biases, in_mask, out_mask, out_bias_mask).float()
 
     def _shared_forward(
         self,

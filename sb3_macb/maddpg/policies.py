@@ -10,7 +10,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_macb.common.block_adam import BlockAdam
-from sb3_macb.common.grouped_mlp import GroupedMLP
+from sb3_macb.common.grouped_mlp import PRECISIONS, GroupedMLP
 from sb3_macb.envs.joint_env import AgentLayout
 
 
@@ -110,6 +110,7 @@ class MultiAgentActor(nn.Module):
     :param gumbel_temperature: Temperature of the Gumbel-softmax relaxation of discrete actions.
     :param share_groups: Agents that share one actor (lists of agent indices, every agent in one; None: no sharing).
         A shared actor reads its agent's own observation followed by the agent's one-hot id within the group.
+    :param precision: Precision of the products (``"fp32"`` or ``"bf16"``, see :class:`GroupedMLP`).
     """
 
     def __init__(
@@ -121,6 +122,7 @@ class MultiAgentActor(nn.Module):
         generators: list[th.Generator] | None = None,
         gumbel_temperature: float = 1.0,
         share_groups: list[list[int]] | None = None,
+        precision: str = "fp32",
     ):
         super().__init__()
         self.n_agents = layout.n_agents
@@ -135,6 +137,7 @@ class MultiAgentActor(nn.Module):
                 activation_fn,
                 group_runs=np.repeat(np.arange(n_runs), layout.n_agents),
                 generators=generators,
+                precision=precision,
             )
         else:
             check_share_groups(layout, share_groups)
@@ -149,6 +152,7 @@ class MultiAgentActor(nn.Module):
                 group_runs=np.repeat(np.arange(n_runs), n_groups),
                 generators=generators,
                 param_index=(np.arange(n_runs)[:, None] * n_groups + shared.group_of[None, :]).ravel(),
+                precision=precision,
             )
             self.register_buffer("obs_gather", th.as_tensor(shared.gather), persistent=False)
             self.register_buffer("agent_ids", th.as_tensor(shared.ids), persistent=False)
@@ -234,6 +238,8 @@ class MultiAgentCritic(nn.Module):
     :param centralized: Whether each critic sees all agents (MADDPG) or only its own agent (independent DDPG).
     :param n_runs: Independent runs whose critics are stacked together (1: an ordinary model).
     :param generators: One torch generator per run for the initial weights (None: the global one).
+    :param share_groups: Agents that share one critic (lists of agent indices; None: no sharing).
+    :param precision: Precision of the products (``"fp32"`` or ``"bf16"``, see :class:`GroupedMLP`).
     """
 
     def __init__(
@@ -246,6 +252,7 @@ class MultiAgentCritic(nn.Module):
         n_runs: int = 1,
         generators: list[th.Generator] | None = None,
         share_groups: list[list[int]] | None = None,
+        precision: str = "fp32",
     ):
         super().__init__()
         self.n_agents = layout.n_agents
@@ -282,6 +289,7 @@ class MultiAgentCritic(nn.Module):
             generators=generators,
             group_blocks=np.repeat(np.arange(n_critics * n_runs), n_params),  # one block per (critic, run)
             param_index=param_index,
+            precision=precision,
         )
 
     def _with_ids(self, x: th.Tensor) -> th.Tensor:
@@ -339,6 +347,9 @@ class MADDPGPolicy(BasePolicy):
     :param normalize_images: Must be False (accepted so that SB3's ``BasePolicy.load`` can rebuild the policy).
     :param share_actors: Groups of agent indices that share one actor (set by MADDPG from ``share_parameters``).
     :param share_critics: Groups of agent indices that share one critic (set by MADDPG with ``share_critics``).
+    :param precision: ``"fp32"`` (default) or ``"bf16"``: the networks' products in bfloat16 from float32 master
+        weights, gradients and optimizer state. Opt-in, for CPUs with native bfloat16 GEMMs (AVX-512 BF16, AMX) and
+        large networks; see ``benchmarks/throughput.py --bf16`` for its speed on the machine at hand.
     """
 
     def __init__(
@@ -358,6 +369,7 @@ class MADDPGPolicy(BasePolicy):
         normalize_images: bool = False,
         share_actors: list[list[int]] | None = None,
         share_critics: list[list[int]] | None = None,
+        precision: str = "fp32",
     ):
         if normalize_images:
             raise ValueError("MADDPGPolicy works on vector observations: normalize_images must be False")
@@ -392,8 +404,16 @@ class MADDPGPolicy(BasePolicy):
         self.n_runs = n_runs
         self.run_seeds = None if run_seeds is None else [int(seed) for seed in run_seeds]
         self.share_actors, self.share_critics = share_actors, share_critics
+        if precision not in PRECISIONS:
+            raise ValueError(f"policy_kwargs precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        self.precision = precision
         self._actor_kwargs = dict(
-            layout=agent_layout, net_arch=actor_arch, activation_fn=activation_fn, n_runs=n_runs, share_groups=share_actors
+            layout=agent_layout,
+            net_arch=actor_arch,
+            activation_fn=activation_fn,
+            n_runs=n_runs,
+            share_groups=share_actors,
+            precision=precision,
         )
         self._critic_kwargs = dict(
             layout=agent_layout,
@@ -403,6 +423,7 @@ class MADDPGPolicy(BasePolicy):
             centralized=centralized_critic,
             n_runs=n_runs,
             share_groups=share_critics,
+            precision=precision,
         )
         self._build(lr_schedule)
 
@@ -446,6 +467,7 @@ class MADDPGPolicy(BasePolicy):
                 run_seeds=self.run_seeds,
                 share_actors=self.share_actors,
                 share_critics=self.share_critics,
+                precision=self.precision,
             )
         )
         return data
