@@ -157,14 +157,16 @@ def test_bf16_leaves_small_networks_in_fp32():
     assert all(th.equal(a, b) for a, b in zip(exact, low))
 
 
-def test_bf16_follows_every_weight_update(tmp_path):
+@pytest.mark.parametrize("n_critics", [1, 2], ids=["maddpg", "matd3"])
+def test_bf16_follows_every_weight_update(tmp_path, n_critics):
     env = make_joint_env(Rendezvous())
-    model = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96], precision="bf16"), learning_starts=10,
-                   batch_size=8, action_noise=noise(), seed=0)  # fmt: skip
+    td3 = dict(policy_delay=2, target_policy_noise=0.2) if n_critics == 2 else {}
+    model = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96], precision="bf16", n_critics=n_critics),
+                   learning_starts=10, batch_size=16, action_noise=noise(), seed=0, **td3)  # fmt: skip
     obs, act = th.randn(16, 3), th.randn(16, 3)
     before = model.critic(obs, act)
     model.learn(40)  # fused Adam and foreach target updates change the weights in place
-    exact = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96]), seed=1)
+    exact = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96], n_critics=n_critics), seed=1)
     exact.policy.load_state_dict(model.policy.state_dict())
     for net in ("critic", "critic_target", "actor", "actor_target"):
         args = (obs, act) if net.startswith("critic") else (obs,)
