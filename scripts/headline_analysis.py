@@ -60,12 +60,7 @@ def load_runs(task_folder: str) -> tuple[dict[str, list[Run]], dict[str, list[in
     for path in sorted(glob.glob(os.path.join(task_folder, "*", "seed_*", evaluations.FILE_NAME))):
         folder = os.path.dirname(path)
         variant, seed = os.path.basename(os.path.dirname(folder)), int(os.path.basename(folder)[len("seed_") :])
-        meta_path = os.path.join(folder, "run.json")
-        complete = False
-        if os.path.isfile(meta_path):
-            with open(meta_path) as file:
-                complete = bool(json.load(file).get("complete", False))
-        if not complete:
+        if not evaluations.is_complete(folder):
             incomplete.setdefault(variant, []).append(seed)
             continue
         data = evaluations.load(path)

@@ -36,6 +36,7 @@ def summarize(
     max_episodes: int | None = None,
     collisions: bool = False,
     metric: str = evaluations.SUCCESSES,
+    complete_only: bool = False,
 ) -> str:
     name = evaluations.SUCCESS_METRICS.get(metric, metric)
     lines = [
@@ -47,6 +48,8 @@ def summarize(
     commands = []
     for variant in sorted(os.listdir(task_folder)):
         runs = sorted(glob.glob(os.path.join(task_folder, variant, "seed_*", evaluations.FILE_NAME)))
+        if complete_only:
+            runs = [path for path in runs if evaluations.is_complete(os.path.dirname(path))]
         if not runs:
             continue
         reached, hit, per_seed, finals, walls, crashes, lengths, packs = [], [], [], [], [], [], [], []
@@ -97,10 +100,12 @@ def main() -> None:
     parser.add_argument("--max-episodes", type=int, default=None, help="cut every run at this many training episodes")
     parser.add_argument("--metric", default=evaluations.SUCCESSES, choices=list(evaluations.SUCCESS_METRICS),
                         help="any-step success (the paper's) or final-step success")  # fmt: skip
+    parser.add_argument("--complete-only", action="store_true", help="leave out runs still in progress")
     args = parser.parse_args()
     for folder in args.task_folders:
         print(f"### {os.path.basename(os.path.normpath(folder))}\n")
-        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes, args.collisions, args.metric))
+        print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes, args.collisions, args.metric,
+                        args.complete_only))  # fmt: skip
         print()
 
 

@@ -168,3 +168,15 @@ def test_headline_c2_outcomes(macb, constant, decision):
     analysis = load_script("headline_analysis")
     runs = lambda levels: [analysis.Run(i, 0.0, False, a, f) for i, (a, f) in enumerate(levels)]  # noqa: E731
     assert analysis.decide_c2(runs(macb), runs(constant))[0] == decision
+
+
+def test_complete_only_leaves_out_runs_in_progress(tmp_path):
+    from sb3_macb.common import evaluations
+
+    write_headline_run(tmp_path / "v" / "seed_0", [0.5] * 30, [0.4] * 30)
+    write_headline_run(tmp_path / "v" / "seed_1", [0.5] * 10, [0.4] * 10, complete=False)
+    assert [len(r["successes"]) for r in evaluations.load_group(str(tmp_path / "v"))] == [30, 10]
+    assert [len(r["successes"]) for r in evaluations.load_group(str(tmp_path / "v"), complete_only=True)] == [30]
+    (tmp_path / "v" / "seed_0" / "run.json").unlink()
+    with pytest.raises(FileNotFoundError, match="No complete run below"):
+        evaluations.load_group(str(tmp_path / "v"), complete_only=True)

@@ -9,6 +9,7 @@ success condition at the episode's last step), ``episodes`` (training episodes c
 """
 
 import glob
+import json
 import os
 from typing import Any
 
@@ -62,11 +63,24 @@ def load(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray]:
     return arrays
 
 
-def load_group(folder: str, max_episodes: int | None = None) -> list[dict[str, np.ndarray]]:
-    """Every run below ``folder`` (one ``evaluations.npz`` per seed, at any depth), in path order."""
+def is_complete(run_folder: str) -> bool:
+    """Whether the run in ``run_folder`` ran to its end: its ``run.json`` says ``complete`` (runs filed by
+    ``scripts/reproduce.py``; a run in progress has evaluations up to its last checkpoint and no such mark)."""
+    path = os.path.join(run_folder, "run.json")
+    if not os.path.isfile(path):
+        return False
+    with open(path) as file:
+        return bool(json.load(file).get("complete", False))
+
+
+def load_group(folder: str, max_episodes: int | None = None, complete_only: bool = False) -> list[dict[str, np.ndarray]]:
+    """Every run below ``folder`` (one ``evaluations.npz`` per seed, at any depth), in path order; with
+    ``complete_only``, only the runs that :func:`is_complete` says ran to their end."""
     paths = sorted(glob.glob(os.path.join(folder, "**", FILE_NAME), recursive=True))
+    if complete_only:
+        paths = [path for path in paths if is_complete(os.path.dirname(path))]
     if not paths:
-        raise FileNotFoundError(f"No {FILE_NAME} below {folder}")
+        raise FileNotFoundError(f"No {'complete run' if complete_only else FILE_NAME} below {folder}")
     return [load(path, max_episodes) for path in paths]
 
 

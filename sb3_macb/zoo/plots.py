@@ -59,15 +59,21 @@ _x_axis = evaluations.episodes
 
 
 def plot_curves(
-    groups: list[str], output: str, window: int = 50, confidence: float = 0.75, reference: str | None = None
+    groups: list[str],
+    output: str,
+    window: int = 50,
+    confidence: float = 0.75,
+    reference: str | None = None,
+    complete_only: bool = False,
 ) -> None:
     """
     Success rate (any-step and, where recorded, final-step) and mean evaluation return against training episodes,
     one line per run group; with ``reference`` (the JSON of ``scripts/reference_levels.py``) the scripted
-    listeners' levels as horizontal lines.
+    listeners' levels as horizontal lines. With ``complete_only``, runs still in progress are left out (otherwise
+    a group's curve ends where its shortest run does).
     """
     plt = _pyplot()
-    all_runs = {folder: load_group(folder) for folder in groups}
+    all_runs = {folder: load_group(folder, complete_only=complete_only) for folder in groups}
     panels = [(evaluations.SUCCESSES, "any-step success rate"), (evaluations.RESULTS, "mean return")]
     if all(evaluations.FINAL_SUCCESSES in r for runs in all_runs.values() for r in runs):
         panels.insert(1, (evaluations.FINAL_SUCCESSES, "final-step success rate"))
@@ -221,6 +227,8 @@ def main(argv: list[str] | None = None) -> None:
     curves.add_argument("--confidence", type=float, default=0.75)
     curves.add_argument("-o", "--output", default="curves.png")
     curves.add_argument("--reference", default=None, help="scripted listeners' levels (scripts/reference_levels.py)")
+    curves.add_argument("--complete-only", action="store_true", help="leave out runs still in progress (no "
+                        "'complete' in their run.json)")  # fmt: skip
     collisions = sub.add_parser("collisions", help="accumulated training collisions")
     collisions.add_argument("groups", nargs="+")
     collisions.add_argument("--confidence", type=float, default=0.75)
@@ -237,7 +245,7 @@ def main(argv: list[str] | None = None) -> None:
     simhash.add_argument("-o", "--output", default="simhash.png")
     args = parser.parse_args(argv)
     if args.what == "curves":
-        plot_curves(args.groups, args.output, args.smooth, args.confidence, args.reference)
+        plot_curves(args.groups, args.output, args.smooth, args.confidence, args.reference, args.complete_only)
     elif args.what == "collisions":
         plot_collisions(args.groups, args.output, args.confidence)
     elif args.what == "table":
