@@ -176,6 +176,27 @@ class _SharedGather(th.autograd.Function):
         return total, None, None
 
 
+def _select_groups(
+    groups: slice | None,
+    weights: list[th.Tensor],
+    biases: list[th.Tensor],
+    in_mask: th.Tensor | None,
+    out_mask: th.Tensor,
+    out_bias_mask: th.Tensor,
+) -> tuple[list[th.Tensor], list[th.Tensor], th.Tensor | None, th.Tensor, th.Tensor]:
+    """The parameters and masks of the groups to evaluate (all of them when ``groups`` is None)."""
+    if groups is None:
+        return weights, biases, in_mask, out_mask, out_bias_mask
+    # (slicing parameters that need a gradient would cost a zero-filled copy in backward)
+    return (
+        [w[groups] for w in weights],
+        [b[groups] for b in biases],
+        None if in_mask is None else in_mask[groups],
+        out_mask[groups],
+        out_bias_mask[groups],
+    )
+
+
 class GroupedMLP(nn.Module):
     """
     ``G`` independent MLPs of the same hidden sizes, evaluated together.
@@ -310,10 +331,18 @@ class GroupedMLP(nn.Module):
         if detach_params:
             weights = [w.detach() for w in weights]
             biases = [b.detach() for b in biases]
-        if use_low and not large:
-            return self._low_precision_forward(x, weights, biases, groups, in_mask, out_mask, out_bias_mask)
-        if self.param_index is not None and not large:
-            return self._shared_forward(x, weights, biases, groups, in_mask, out_mask, out_bias_mask)
+        if not large:
+            if use_low:  # networks with a large layer on the batched path: cast with autograd (float32 gradients)
+                dtype = self._low_dtype
+                x, weights, biases = x.to(dtype), [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
+                in_mask = None if in_mask is None else in_mask.to(dtype)
+                out_mask, out_bias_mask = out_mask.to(dtype), out_bias_mask.to(dtype)
+            masks = (in_mask, out_mask, out_bias_mask)
+            if self.param_index is not None:
+                out = self._shared_forward(x, weights, biases, groups, *masks)
+            else:
+                out = self._batched(x, *_select_groups(groups, weights, biases, *masks))
+            return out.float() if use_low else out
         if self.param_index is not None:  # shared parameters: each evaluation group reads its parameter group
             index = self.param_index
             weights = [_SharedGather.apply(w, index, self.param_members) for w in weights]
@@ -321,19 +350,15 @@ class GroupedMLP(nn.Module):
             low = None if low is None else [None if p is None else p.index_select(0, index) for p in low]
             in_mask = None if in_mask is None else in_mask.index_select(0, index)
             out_mask, out_bias_mask = out_mask.index_select(0, index), out_bias_mask.index_select(0, index)
-        if groups is not None:
-            # (slicing parameters that need a gradient would cost a zero-filled copy in backward)
-            weights = [w[groups] for w in weights]
-            biases = [b[groups] for b in biases]
-            low = None if low is None else [None if p is None else p[groups] for p in low]
-            in_mask = None if in_mask is None else in_mask[groups]
-            out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
-        if large:
-            # masked weights are zero already; the Function masks their gradients instead of the weights
-            out_masks = None if self._full_out else (out_mask, out_bias_mask)
-            low_params = None if low is None else tuple(low)
-            return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, low_params, *weights, *biases)
-        return self._batched(x, weights, biases, in_mask, out_mask, out_bias_mask)
+        weights, biases, in_mask, out_mask, out_bias_mask = _select_groups(
+            groups, weights, biases, in_mask, out_mask, out_bias_mask
+        )
+        if low is not None and groups is not None:
+            low = [None if p is None else p[groups] for p in low]
+        # masked weights are zero already; the Function masks their gradients instead of the weights
+        out_masks = None if self._full_out else (out_mask, out_bias_mask)
+        low_params = None if low is None else tuple(low)
+        return _GroupedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, low_params, *weights, *biases)
 
     def _batched(
         self,
@@ -369,32 +394,6 @@ class GroupedMLP(nn.Module):
         with th.no_grad():
             return [None if params[i % n_layers][0].numel() < ONEDNN_MIN_WEIGHTS else p.to(self._low_dtype)
                     for i, p in enumerate(params)]  # fmt: skip
-
-    def _low_precision_forward(
-        self,
-        x: th.Tensor,
-        weights: list[th.Tensor],
-        biases: list[th.Tensor],
-        groups: slice | None,
-        in_mask: th.Tensor | None,
-        out_mask: th.Tensor,
-        out_bias_mask: th.Tensor,
-    ) -> th.Tensor:
-        """
-        The batched path in low precision (networks with a large layer on other devices or with other activations):
-        the parameters are cast with autograd, so that their gradients arrive in float32.
-        """
-        dtype = self._low_dtype
-        weights, biases = [w.to(dtype) for w in weights], [b.to(dtype) for b in biases]
-        in_mask = None if in_mask is None else in_mask.to(dtype)
-        out_mask, out_bias_mask = out_mask.to(dtype), out_bias_mask.to(dtype)
-        if self.param_index is not None:
-            return self._shared_forward(x.to(dtype), weights, biases, groups, in_mask, out_mask, out_bias_mask).float()
-        if groups is not None:
-            weights, biases = [w[groups] for w in weights], [b[groups] for b in biases]
-            in_mask = None if in_mask is None else in_mask[groups]
-            out_mask, out_bias_mask = out_mask[groups], out_bias_mask[groups]
-        return self._batched(x.to(dtype), weights, biases, in_mask, out_mask, out_bias_mask).float()
 
     def _shared_forward(
         self,
