@@ -85,7 +85,8 @@ def decide_c1(macb: list[Run], maddpg: list[Run]) -> tuple[str, str]:
     figures = (
         f"MACB(s, x): {reached} of {len(macb)} seeds reach 90% any-step success, Kaplan-Meier median "
         f"{'not reached' if median is None else f'{median:.0f} episodes'}; MADDPG median {reference:.0f} episodes "
-        f"({sum(r.reached for r in maddpg)} of {len(maddpg)} reach it, the others counted at their last episode)"
+        f"({sum(r.reached for r in maddpg)} of {len(maddpg)} reach it; runs that do not are counted at their last "
+        "episode, as registered)"
     )
     if reached < len(macb) / 2 or median is None or median > reference / 2:
         return "refuted", figures
