@@ -386,6 +386,26 @@ def test_straight_through_gumbel_softmax_gradient():
     assert th.allclose(raw.grad[:, :3], expected, atol=1e-6) and th.all(raw.grad[:, 3:] == 0)
 
 
+def test_shared_critics_with_td3_settings_are_one_network_per_critic_and_all_learn(tmp_path):
+    # the README's remedy for shared critics with many agents: twin critics, each shared by all agents
+    from mpe2 import simple_spread_v3
+
+    spread = lambda: make_joint_env(simple_spread_v3.parallel_env(N=3, continuous_actions=True, max_cycles=10))  # noqa: E731
+    model = MADDPG("MlpPolicy", spread(), share_parameters="all", share_critics=True, policy_delay=2, target_policy_noise=0.2,
+                   policy_kwargs=dict(net_arch=[16], n_critics=2), learning_starts=20, batch_size=8, seed=0)  # fmt: skip
+    assert [w.shape[0] for w in model.critic.q_net.weights] == [2, 2]  # two critics x one shared group
+    before = [w.detach().clone() for w in model.critic.q_net.weights]
+    model.learn(60)
+    for old, new in zip(before, model.critic.q_net.weights):
+        assert not th.equal(old[0], new[0]) and not th.equal(old[1], new[1])  # both critics were trained
+    obs = th.as_tensor(model.env.reset(), dtype=th.float32)
+    q = model.critic(obs, model.actor(obs))
+    assert q.shape == (2, 1, 3, 1) and th.isfinite(q).all() and not th.equal(q[0], q[1])
+    model.save(tmp_path / "td3_shared.zip")
+    loaded = MADDPG.load(tmp_path / "td3_shared.zip", env=spread())
+    assert th.equal(loaded.critic(obs, loaded.actor(obs)), q)
+
+
 def test_parameter_sharing_groups_ids_save_load_and_errors(tmp_path):
     from mpe2 import simple_spread_v3, simple_tag_v3
 
