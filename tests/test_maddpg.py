@@ -469,3 +469,31 @@ def test_learns_discrete_speaker_listener():
     random_env.reset(seed=100)
     random_return, _ = evaluate_policy(Uniform(), random_env, n_eval_episodes=20)
     assert learned > random_return + 15, (learned, random_return)
+
+
+@pytest.mark.parametrize("flush", [True, False])
+def test_denormals_are_flushed_during_learn_only_and_the_setting_is_restored(tmp_path, flush):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from sb3_macb.maddpg.maddpg import flushing_denormals
+
+    class Probe(BaseCallback):
+        def _on_step(self) -> bool:
+            self.seen = flushing_denormals()
+            return True
+
+    if not th.set_flush_denormal(False):
+        pytest.skip("this CPU cannot flush denormals")
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, learning_starts=10, batch_size=8, seed=0,
+                   flush_denormal=flush)  # fmt: skip
+    probe = Probe()
+    model.learn(30, callback=probe)
+    assert probe.seen is flush and not flushing_denormals()  # on while learning (if asked), off again afterwards
+    th.set_flush_denormal(True)  # a user's own setting is left as it was
+    try:
+        model.learn(20, callback=probe, reset_num_timesteps=False)
+        assert probe.seen and flushing_denormals()
+    finally:
+        th.set_flush_denormal(False)
+    model.save(tmp_path / "m.zip")
+    assert MADDPG.load(tmp_path / "m.zip").flush_denormal is flush
