@@ -548,7 +548,7 @@ class MADDPG(TD3):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfMADDPG:
-        flush = getattr(self, "flush_denormal", True)
+        flush = self.flush_denormal
         was_flushing = flushing_denormals()
         if flush and not was_flushing:
             th.set_flush_denormal(True)
