@@ -36,15 +36,15 @@ TD3 = dict(policy_delay=2, target_policy_noise=0.2)
 
 def config_kwargs(name: str, n: int) -> tuple[dict, dict]:
     """(MADDPG kwargs, policy_kwargs) of a configuration."""
+    base, _, suffix = name.partition("_")
     shares = {"none": {}, "actors": dict(share_parameters="all"), "both": dict(share_parameters="all", share_critics=True)}
-    if name.split("_")[0] not in shares or name.count("_") > 1 or ("_" in name and name.split("_")[1] not in ("td3", "lr")):
+    if base not in shares or suffix not in ("", "td3", "lr"):
         raise SystemExit(f"Unknown configuration {name!r}: none, actors or both, optionally with _td3 or _lr")
-    share = shares[name.split("_")[0]]
-    if name.endswith("_td3"):
-        return {**share, **TD3}, {"n_critics": 2}
-    if name.endswith("_lr"):
-        return {**share, "learning_rate": 1e-3 / n}, {}
-    return share, {}
+    if suffix == "td3":
+        return {**shares[base], **TD3}, {"n_critics": 2}
+    if suffix == "lr":
+        return {**shares[base], "learning_rate": 1e-3 / n}, {}
+    return shares[base], {}
 
 
 class Probe(BaseCallback):
@@ -53,7 +53,6 @@ class Probe(BaseCallback):
     def __init__(self, n: int, every: int, eval_episodes: int, seed: int) -> None:
         super().__init__()
         self.n, self.every, self.eval_episodes, self.seed = n, every, eval_episodes, seed
-        self.rows: list[tuple[int, float, float, float, float]] = []
 
     def _on_step(self) -> bool:
         if self.num_timesteps % self.every:
@@ -73,7 +72,6 @@ class Probe(BaseCallback):
         env.reset(seed=1000 + self.seed)
         result = evaluate_policy(model, env, n_eval_episodes=self.eval_episodes)[0]
         row = (self.num_timesteps, result, float(q.mean()), reward / (1 - model.gamma), saturated)
-        self.rows.append(row)
         print(f"  step {row[0]:>6}: return {row[1]:8.1f}   Q {row[2]:8.2f}   r/(1-g) {row[3]:8.2f}   sat {row[4]:.2f}",
               flush=True)  # fmt: skip
         return True

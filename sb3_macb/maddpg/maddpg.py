@@ -95,8 +95,8 @@ class MADDPG(TD3):
     :param flush_denormal: During ``learn``, flush denormal floats (below 1.2e-38) to zero on CPU, as
         ``torch.set_flush_denormal(True)`` does, and restore the previous setting afterwards. Adam's moments of
         units whose gradient is zero (dead ReLUs) decay into the denormal range after some 10^4-10^5 updates, and
-        arithmetic on denormals is 10-100 times slower on many CPUs (Intel's in particular): without flushing, a
-        400-300 run slowed to a third of its speed. Values that small do not change what is learned, but a run with
+        arithmetic on denormals is 10-100 times slower on many CPUs (Intel's in particular): on an Intel Xeon the
+        400-300 pack of three trained 1.7 times faster with flushing from step ~60,000 on. Values that small do not change what is learned, but a run with
         flushing is not bit-identical to one without. The setting holds for the calling thread (torch's intra-op
         threads keep their own); with one torch thread it covers all of training.
     :param _init_setup_model: Whether or not to build the network at the creation of the instance.
@@ -548,9 +548,8 @@ class MADDPG(TD3):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfMADDPG:
-        flush = self.flush_denormal
-        was_flushing = flushing_denormals()
-        if flush and not was_flushing:
+        switch = self.flush_denormal and not flushing_denormals()  # (a user's own setting is left alone)
+        if switch:
             th.set_flush_denormal(True)
         try:
             return super().learn(
@@ -562,7 +561,7 @@ class MADDPG(TD3):
                 progress_bar=progress_bar,
             )
         finally:
-            if flush and not was_flushing:
+            if switch:
                 th.set_flush_denormal(False)
 
     # --- saving -------------------------------------------------------------------------------------------------
