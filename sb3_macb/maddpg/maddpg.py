@@ -96,8 +96,8 @@ class MADDPG(TD3):
         ``torch.set_flush_denormal(True)`` does, and restore the previous setting afterwards. Adam's moments of
         units whose gradient is zero (dead ReLUs) decay into the denormal range after some 10^4-10^5 updates, and
         arithmetic on denormals is 10-100 times slower on many CPUs (Intel's in particular): on an Intel Xeon the
-        400-300 pack of three trained 1.7 times faster with flushing from step ~60,000 on. Values that small do not change what is learned, but a run with
-        flushing is not bit-identical to one without. The setting holds for the calling thread (torch's intra-op
+        400-300 pack of three trained 1.7 times faster with flushing from step ~60,000 on. Values that small do not
+        change what is learned, but a run with flushing is not bit-identical to one without. The setting holds for the calling thread (torch's intra-op
         threads keep their own); with one torch thread it covers all of training.
     :param _init_setup_model: Whether or not to build the network at the creation of the instance.
     """
