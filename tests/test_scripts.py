@@ -180,3 +180,37 @@ def test_complete_only_leaves_out_runs_in_progress(tmp_path):
     (tmp_path / "v" / "seed_0" / "run.json").unlink()
     with pytest.raises(FileNotFoundError, match="No complete run below"):
         evaluations.load_group(str(tmp_path / "v"), complete_only=True)
+
+
+def test_trajectories_milestones_collapse_share_and_identical_prefix(tmp_path):
+    import argparse
+
+    trajectories = load_script("trajectories")
+    task = tmp_path / "task"
+    n = 100  # evaluations after episodes 100, 200, ..., 10000
+    joint = [0.0] * 20 + [1.0] * 40 + [0.0] * 40
+    write_headline_run(task / "macb_joint" / "seed_0", joint, [0.5] * n, complete=False)
+    write_headline_run(task / "macb_constant" / "seed_0", joint, [0.5] * n, complete=False)
+    write_headline_run(task / "maddpg" / "seed_0", [0.4] * n, [0.3] * n)
+    # the constant bonus's run departs from MACB's at evaluation 31 (episode 3100, step 62,000)
+    path = task / "macb_constant" / "seed_0" / "evaluations.npz"
+    arrays = dict(np.load(path))
+    arrays["results"] = arrays["results"].copy()
+    arrays["results"][30:] += 1.0
+    np.savez(path, **arrays)
+    args = argparse.Namespace(seeds=None, variants=None, window=10, threshold=0.9, every=2000, after=2000, floor=0.15,
+                              pairs=["macb_joint:macb_constant", "maddpg:absent"])  # fmt: skip
+    report = trajectories.report(str(task), args)
+    rows = {line.split(" | ")[1]: line for line in report.splitlines() if line.startswith("| 0 |")}
+    # trailing 10 at episodes 2000 (0 ones), 4000 and 6000 (all ones), 8000 and 10000 (none); 90% at episode 2900;
+    # collapsed after 2000: evaluation 21 (trailing 0.1) and 69-100 (at most one 1.0 in the window) = 33 of 80
+    assert rows["macb_joint"] == (
+        "| 0 | macb_joint | 10,000 (no) | 2,900 | 0.00/0.50 | 1.00/0.50 | 1.00/0.50 | 0.00/0.50 | 0.00/0.50 | 41% |"
+    )
+    assert rows["maddpg"].startswith("| 0 | maddpg | 10,000 (yes) | not by 10,000 | 0.40/0.30 |")
+    assert rows["maddpg"].endswith("| 0% |")
+    assert "- seed 0: macb_joint and macb_constant identical up to step 60,000." in report
+    assert "absent" not in report
+    # runs identical over everything recorded say so
+    np.savez(path, **{**arrays, "results": np.zeros_like(arrays["results"])})
+    assert "identical up to step 200,000 (everything recorded so far)" in trajectories.report(str(task), args)

@@ -1,0 +1,151 @@
+"""
+Descriptive tables of how runs evolve, complete or not: the figures docs/results.md quotes beside the
+pre-registered analysis (``scripts/headline_analysis.py``), from the files alone.
+
+    python scripts/trajectories.py results/CommunicativeNavigation-sparse-paper
+    python scripts/trajectories.py results/CommunicativeNavigation-sparse-paper-first-attempt --seeds 1 2
+
+Per run (``<variant>/seed_<s>/evaluations.npz``):
+
+- the training episodes it has reached (and whether ``run.json`` marks it complete);
+- the first episode at which the trailing ``--window``-evaluation any-step success reaches ``--threshold``;
+- the trailing ``--window``-evaluation any-step / final-step success at every ``--every``-th training episode;
+- the share of evaluations after episode ``--after`` whose trailing any-step success is below ``--floor``
+  ("collapsed"; a post-hoc measure, first used on the 64-64 runs, not part of the registration).
+
+Per seed, for every pair of ``--pairs`` (default: MACB k 512 against the constant bonus): the last step up to which
+the two runs' evaluations are identical (returns of every evaluation episode, per agent and in total). Two runs that
+agree there have computed the same thing so far: their counts never changed a bonus that mattered.
+
+Nothing here decides anything: the registered decisions are ``scripts/headline_analysis.py``'s.
+"""
+
+import argparse
+import glob
+import os
+
+import numpy as np
+
+from sb3_macb.common import evaluations
+
+
+def trailing(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over ``window`` values, NaN until ``window`` values exist."""
+    out = np.full(len(values), np.nan)
+    if len(values) >= window:
+        out[window - 1 :] = np.convolve(values, np.ones(window) / window, mode="valid")
+    return out
+
+
+def identical_until(first: dict[str, np.ndarray], second: dict[str, np.ndarray]) -> tuple[int | None, bool]:
+    """
+    The last step at which two runs' evaluations are still identical (returns per episode and per agent), and
+    whether they are identical over everything both have recorded. ``None`` if they differ at the first evaluation.
+    """
+    n = min(len(first[evaluations.TIMESTEPS]), len(second[evaluations.TIMESTEPS]))
+    if not np.array_equal(first[evaluations.TIMESTEPS][:n], second[evaluations.TIMESTEPS][:n]):
+        raise SystemExit("the two runs evaluate at different steps: compare runs of one experiment")
+    same = np.ones(n, dtype=bool)
+    for name in (evaluations.RESULTS, evaluations.AGENT_RETURNS):
+        if name in first and name in second:
+            same &= np.all((first[name][:n] == second[name][:n]).reshape(n, -1), axis=1)
+    if same.all():
+        return (int(first[evaluations.TIMESTEPS][n - 1]) if n else None), True
+    differs = int(np.argmin(same))
+    return (int(first[evaluations.TIMESTEPS][differs - 1]) if differs else None), False
+
+
+def run_row(run: dict[str, np.ndarray], args: argparse.Namespace, milestones: list[int]) -> list[str]:
+    """The table cells of one run."""
+    episodes = evaluations.episodes(run)
+    any_step = trailing(evaluations.rate(run, evaluations.SUCCESSES), args.window)
+    final = (
+        trailing(evaluations.rate(run, evaluations.FINAL_SUCCESSES), args.window)
+        if evaluations.FINAL_SUCCESSES in run
+        else np.full(len(episodes), np.nan)
+    )
+    value, reached = evaluations.episodes_to(run[evaluations.SUCCESSES], episodes, args.threshold, args.window)
+    cells = [f"{value:,.0f}" if reached else f"not by {episodes[-1]:,.0f}"]
+    for milestone in milestones:
+        at = np.flatnonzero(episodes == milestone)
+        if len(at) and not np.isnan(any_step[at[0]]):
+            cells.append(f"{any_step[at[0]]:.2f}/{final[at[0]]:.2f}")
+        else:
+            cells.append("")
+    later = (episodes > args.after) & ~np.isnan(any_step)
+    cells.append(f"{np.mean(any_step[later] < args.floor):.0%}" if later.any() else "")
+    return cells
+
+
+def report(task_folder: str, args: argparse.Namespace) -> str:
+    """The markdown tables for one task folder."""
+    runs: dict[tuple[int, str], dict[str, np.ndarray]] = {}
+    complete: dict[tuple[int, str], bool] = {}
+    for path in sorted(glob.glob(os.path.join(task_folder, "*", "seed_*", evaluations.FILE_NAME))):
+        folder = os.path.dirname(path)
+        variant, seed = os.path.basename(os.path.dirname(folder)), int(os.path.basename(folder)[len("seed_") :])
+        if (args.seeds and seed not in args.seeds) or (args.variants and variant not in args.variants):
+            continue
+        runs[seed, variant] = evaluations.load(path)
+        complete[seed, variant] = evaluations.is_complete(folder)
+    if not runs:
+        raise SystemExit(f"No {evaluations.FILE_NAME} below {task_folder} for these seeds and variants")
+    last = max(float(evaluations.episodes(run)[-1]) for run in runs.values())
+    milestones = list(range(args.every, int(last) + 1, args.every))
+    lines = [f"### {os.path.basename(os.path.normpath(task_folder))}", ""]
+    lines.append(
+        f"Trailing {args.window}-evaluation any-step/final-step success at every {args.every:,}th training episode; "
+        f"first episode at {args.threshold:.0%} any-step; share of evaluations after episode {args.after:,} with "
+        f"trailing any-step below {args.floor} (collapsed)."
+    )
+    lines.append("")
+    lines.append(
+        "| seed | variant | episodes (complete?) | "
+        + f"{args.threshold:.0%} any-step at episode | "
+        + " | ".join(f"{m:,}" for m in milestones)
+        + f" | collapsed after {args.after:,} |"
+    )
+    lines.append("|" + "---|" * (len(milestones) + 5))
+    for (seed, variant), run in sorted(runs.items()):
+        reached = f"{evaluations.episodes(run)[-1]:,.0f} ({'yes' if complete[seed, variant] else 'no'})"
+        lines.append(f"| {seed} | {variant} | {reached} | " + " | ".join(run_row(run, args, milestones)) + " |")
+    pair_lines = []
+    for seed in sorted({seed for seed, _ in runs}):
+        for pair in args.pairs:
+            first, second = pair.split(":")
+            if (seed, first) in runs and (seed, second) in runs:
+                step, whole = identical_until(runs[seed, first], runs[seed, second])
+                text = "differ from the first evaluation" if step is None else f"identical up to step {step:,}"
+                pair_lines.append(
+                    f"- seed {seed}: {first} and {second} {text}{' (everything recorded so far)' if whole else ''}."
+                )
+    if pair_lines:
+        lines += [""] + pair_lines
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("task_folders", nargs="+")
+    parser.add_argument("--seeds", type=int, nargs="*", default=None, help="only these seeds (default: all)")
+    parser.add_argument("--variants", nargs="*", default=None, help="only these variants (default: all)")
+    parser.add_argument("--window", type=int, default=200, help="evaluations in the trailing mean")
+    parser.add_argument("--threshold", type=float, default=0.9, help="any-step success threshold")
+    parser.add_argument("--every", type=int, default=4000, help="training episodes between milestones")
+    parser.add_argument("--after", type=int, default=4000, help="episode after which collapses are counted")
+    parser.add_argument("--floor", type=float, default=0.15, help="trailing any-step success below which a run is collapsed")
+    parser.add_argument("--pairs", nargs="*", default=["macb_joint:macb_constant"], help="variant pairs a:b to compare")
+    args = parser.parse_args()
+    for value, name in ((args.window, "--window"), (args.every, "--every")):
+        if value < 1:
+            parser.error(f"{name} must be at least 1, got {value}")
+    for pair in args.pairs:
+        if pair.count(":") != 1:
+            parser.error(f"--pairs takes variant pairs as a:b, got {pair!r}")
+    for folder in args.task_folders:
+        print(report(folder, args))
+        print()
+
+
+if __name__ == "__main__":
+    main()
