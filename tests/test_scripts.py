@@ -214,3 +214,34 @@ def test_trajectories_milestones_collapse_share_and_identical_prefix(tmp_path):
     # runs identical over everything recorded say so
     np.savez(path, **{**arrays, "results": np.zeros_like(arrays["results"])})
     assert "identical up to step 200,000 (everything recorded so far)" in trajectories.report(str(task), args)
+
+
+def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
+    import json
+
+    import torch as th
+
+    from sb3_macb import MACB, MADDPG
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    diagnostics = load_script("collapse_diagnostics")
+    model = MADDPG("MlpPolicy", make_task_vec_env(diagnostics.ENV_ID, 2), n_runs=2, run_seeds=[0, 1],
+                   exploration=[None, MACB(0.8, counts=False)], policy_kwargs=dict(net_arch=[16]))  # fmt: skip
+    experiment = tmp_path / "experiment.json"
+    runs = [{"variants": ["maddpg"], "hyperparams": {"exploration": None}},
+            {"variants": ["macb_constant"], "hyperparams": {"exploration": {"beta": 0.8, "counts": False}}}]  # fmt: skip
+    experiment.write_text(json.dumps({"config": {"runs": runs}}))
+    assert diagnostics.run_labels(str(experiment), 2) == [("maddpg", 0.0, False), ("macb_constant", 0.8, True)]
+    with pytest.raises(SystemExit, match="not this pack's experiment"):
+        diagnostics.run_labels(str(experiment), 3)
+
+    fresh = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0)
+    assert fresh["Q range"] == pytest.approx((-20.0, 80.0))  # (0.8 - 1) / 0.01 and 0.8 / 0.01
+    assert diagnostics.diagnose(model, 0, 0.0, False, episodes=6, seed=0)["Q range"] == pytest.approx((-100.0, 0.0))
+    assert 0.0 <= fresh["final"] <= fresh["any"] <= 1.0
+    assert fresh["sat lis"] < 0.5 and fresh["|pre| lis"] < 3.0  # a fresh actor is not saturated
+    with th.no_grad():
+        for parameter in model.actor.parameters():
+            parameter.mul_(50.0)
+    saturated = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0)
+    assert saturated["sat lis"] > 0.9 and saturated["sat spk"] > 0.9 and saturated["|pre| lis"] > 10.0

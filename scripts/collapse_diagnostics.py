@@ -1,0 +1,127 @@
+"""
+What a collapsed Communicative Navigation run looks like inside: loads saved packs (a checkpoint's or a finished
+run's ``model.zip``), plays ``--episodes`` noise-free episodes with each run's policy and prints per run:
+
+- ``any`` / ``final``: any-step and final-step success of those episodes (as the evaluations);
+- ``sat spk`` / ``sat lis``: the share of the speaker's and the listener's action components within 0.01 of a bound
+  (``|a| > 0.99`` in the actors' [-1, 1] units);
+- ``|pre| lis``: the listener's mean pre-tanh output size (above ~3 the tanh is flat: the actor's gradient through it
+  is below 1% of its unsaturated size, so a saturated actor hardly moves back);
+- ``Q spk`` / ``Q lis``: each agent's critic's mean Q(s, pi(s)) on the visited states, beside the range any true
+  value can take (``Q range``): with the sparse reward in {-1, 0} plus a bonus in [0, beta] on every transition, the
+  discounted value lies in [-1/(1-gamma), beta/(1-gamma)], and with the constant bonus (exactly beta) in
+  [(beta-1)/(1-gamma), beta/(1-gamma)]; ``Q out``: the share of Q values outside that range
+  (overestimation or underestimation beyond doubt).
+
+    python scripts/collapse_diagnostics.py logs/archive/seed_1/step_*.zip \\
+        --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json
+
+``--experiment`` names the pack's runs by their variants (default: run 0, run 1, ...). A post-hoc diagnosis: it
+decides nothing registered.
+"""
+
+import argparse
+import json
+import os
+import re
+
+import numpy as np
+import torch as th
+
+from sb3_macb import MADDPG
+from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
+
+
+def run_labels(experiment: str | None, n_runs: int) -> list[tuple[str, float, bool]]:
+    """(variant, beta, constant bonus?) of each run of the pack, from ``experiment.json`` (beta 0 without a bonus)."""
+    if experiment is None:
+        return [(f"run {k}", 0.0, False) for k in range(n_runs)]
+    with open(experiment) as file:
+        runs = json.load(file)["config"]["runs"]
+    if len(runs) != n_runs:
+        raise SystemExit(f"{experiment} has {len(runs)} runs, the model {n_runs}: not this pack's experiment")
+    labels = []
+    for run in runs:
+        bonus = run["hyperparams"].get("exploration") or {}
+        constant = bool(bonus) and bonus.get("counts", True) is False
+        labels.append(("+".join(run["variants"]) or "run", float(bonus.get("beta", 0.0)), constant))
+    return labels
+
+
+def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, seed: int) -> dict[str, float]:
+    """Play ``episodes`` noise-free episodes with run ``k`` of ``model`` and measure it (see the module docstring)."""
+    solo = model.get_run(k)
+    layout = solo.agent_layout
+    env = make_task_vec_env(ENV_ID, episodes, {"reward": "sparse"})
+    env.seed(seed)
+    obs = env.reset()
+    observations, actions, raws = [], [], []
+    reached = np.zeros(episodes, dtype=bool)
+    final = np.zeros(episodes, dtype=bool)
+    for _ in range(10_000):
+        with th.no_grad():
+            obs_t = th.as_tensor(obs, dtype=th.float32)
+            action, raw = solo.actor(obs_t), solo.actor.raw(obs_t)
+        observations.append(obs_t)
+        actions.append(action)
+        raws.append(raw)
+        env_action, _ = solo.predict(obs, deterministic=True)
+        obs, _, dones, infos = env.step(env_action)
+        success = np.array([info["agent_infos"]["listener_0"]["success"] for info in infos])
+        reached |= success
+        if dones.all():
+            final = success
+            break
+    else:
+        raise RuntimeError("the episodes did not end")
+    obs_all, act_all, raw_all = th.cat(observations), th.cat(actions), th.cat(raws)
+    with th.no_grad():
+        q = solo.critic(obs_all, act_all)[0, 0]  # (n_agents, steps * episodes) of the first critic
+    bounds = ((beta - 1.0 if constant else -1.0) / (1.0 - solo.gamma), beta / (1.0 - solo.gamma))
+    out: dict[str, float] = {"any": float(reached.mean()), "final": float(final.mean())}
+    start = 0
+    for i, name in enumerate(layout.agents):
+        width = layout.action_dims[i]
+        part = act_all[:, start : start + width]
+        short = "spk" if name.startswith("speaker") else "lis" if name.startswith("listener") else name
+        out[f"sat {short}"] = float((part.abs() > 0.99).float().mean())
+        if short == "lis":
+            out["|pre| lis"] = float(raw_all[:, start : start + width].abs().mean())
+        out[f"Q {short}"] = float(q[i].mean())
+        start += width
+    out["Q out"] = float(((q < bounds[0] - 1e-3) | (q > bounds[1] + 1e-3)).float().mean())
+    out["Q range"] = bounds  # type: ignore[assignment]
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("models", nargs="+", help="model.zip files of packs (e.g. archived checkpoints)")
+    parser.add_argument("--experiment", default=None, help="the pack's experiment.json (names the runs)")
+    parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=12345)
+    args = parser.parse_args()
+    if args.episodes < 1:
+        parser.error(f"--episodes must be at least 1, got {args.episodes}")
+    th.set_num_threads(1)
+
+    def step_of(path: str) -> int:
+        found = re.findall(r"\d+", os.path.basename(path))
+        return int(found[-1]) if found else 0
+
+    print("| model | run | any | final | sat spk | sat lis | |pre| lis | Q spk | Q lis | Q range | Q out |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for path in sorted(args.models, key=step_of):
+        model = MADDPG.load(path, device="cpu")
+        for k, (label, beta, constant) in enumerate(run_labels(args.experiment, model.n_runs)):
+            d = diagnose(model, k, beta, constant, args.episodes, args.seed)
+            low, high = d["Q range"]  # type: ignore[misc]
+            print(f"| {os.path.basename(path)} | {label} | {d['any']:.2f} | {d['final']:.2f} | {d['sat spk']:.2f} | "
+                  f"{d['sat lis']:.2f} | {d['|pre| lis']:.2f} | {d['Q spk']:.1f} | {d['Q lis']:.1f} | "
+                  f"[{low:.0f}, {high:.0f}] | {d['Q out']:.2f} |", flush=True)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
