@@ -10,25 +10,39 @@ run's ``model.zip``), plays ``--episodes`` noise-free episodes with each run's p
 - ``Q spk`` / ``Q lis``: each agent's critic's mean Q(s, pi(s)) on the visited states, beside the range any true
   value can take (``Q range``): with the sparse reward in {-1, 0} plus a bonus in [0, beta] on every transition, the
   discounted value lies in [-1/(1-gamma), beta/(1-gamma)], and with the constant bonus (exactly beta) in
-  [(beta-1)/(1-gamma), beta/(1-gamma)]; ``Q out``: the share of Q values outside that range
-  (overestimation or underestimation beyond doubt).
+  [(beta-1)/(1-gamma), beta/(1-gamma)]; ``Q out``: the share of Q values more than 1 (one step's worst reward)
+  outside that range (overestimation or underestimation beyond doubt, not a fitting error at a bound).
 
     python scripts/collapse_diagnostics.py logs/archive/seed_1/step_*.zip \\
         --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json
 
-``--experiment`` names the pack's runs by their variants (default: run 0, run 1, ...). A post-hoc diagnosis: it
-decides nothing registered.
+``--experiment`` names the pack's runs by their variants (default: run 0, run 1, ...).
+
+**Interventions.** Given a checkpoint folder (``model.zip``, ``buffer.npz``, ``state.pkl``, as
+``scripts/reproduce.py --checkpoint-freq`` writes them) and ``--continue-steps N``, the pack is also trained on from
+the checkpoint's exact state (networks, optimizers, replay buffer, count tables, envs, random streams) for N more
+steps per run, once for every ``--preactivation-reg`` value (``MADDPG(preactivation_reg=...)``), and measured again.
+Nothing is written: the checkpoint and the runs' files stay as they are.
+
+    python scripts/collapse_diagnostics.py logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/checkpoint/step_140000 \\
+        --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json \\
+        --continue-steps 5000 --preactivation-reg 0 1e-3
+
+A post-hoc diagnosis: it decides nothing registered.
 """
 
 import argparse
 import json
 import os
+import pickle
+import random
 import re
 
 import numpy as np
 import torch as th
 
 from sb3_macb import MADDPG
+from sb3_macb.common.snapshot import restore
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 
 ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
@@ -91,9 +105,28 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
             out["|pre| lis"] = float(raw_all[:, start : start + width].abs().mean())
         out[f"Q {short}"] = float(q[i].mean())
         start += width
-    out["Q out"] = float(((q < bounds[0] - 1e-3) | (q > bounds[1] + 1e-3)).float().mean())
+    out["Q out"] = float(((q < bounds[0] - 1.0) | (q > bounds[1] + 1.0)).float().mean())
     out["Q range"] = bounds  # type: ignore[assignment]
     return out
+
+
+def continue_from_checkpoint(folder: str, steps: int, preactivation_reg: float) -> MADDPG:
+    """
+    The pack of checkpoint ``folder`` trained ``steps`` more steps per run with ``preactivation_reg``, from the
+    checkpoint's exact state (as ``Experiment`` resumes it, without its evaluation callback: nothing is written).
+    """
+    with open(os.path.join(folder, "state.pkl"), "rb") as file:
+        state = pickle.load(file)  # a checkpoint this machine's runs wrote (pickle: only files you trust)
+    model = MADDPG.load(os.path.join(folder, "model.zip"), env=None, device="cpu")
+    model.set_env(restore(state["train_env"]), force_reset=False)
+    with np.load(os.path.join(folder, "buffer.npz")) as arrays:
+        model.replay_buffer.load_state_arrays(arrays)  # type: ignore[attr-defined]
+    np.random.set_state(state["rng"]["numpy"])
+    random.setstate(state["rng"]["python"])
+    th.set_rng_state(state["rng"]["torch"])
+    model.preactivation_reg = float(preactivation_reg)
+    model.learn(steps * model.n_runs, reset_num_timesteps=False)
+    return model
 
 
 def main() -> None:
@@ -102,25 +135,41 @@ def main() -> None:
     parser.add_argument("--experiment", default=None, help="the pack's experiment.json (names the runs)")
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=12345)
+    parser.add_argument("--continue-steps", type=int, default=0,
+                        help="train checkpoint folders on for this many steps per run, then measure again")
+    parser.add_argument("--preactivation-reg", type=float, nargs="+", default=[0.0],
+                        help="preactivation_reg values for --continue-steps (one continuation each)")  # fmt: skip
     args = parser.parse_args()
     if args.episodes < 1:
         parser.error(f"--episodes must be at least 1, got {args.episodes}")
+    if args.continue_steps < 0:
+        parser.error(f"--continue-steps must be at least 0, got {args.continue_steps}")
+    for path in args.models:
+        if not os.path.exists(path):
+            parser.error(f"{path} does not exist")
+        if args.continue_steps and not os.path.isfile(os.path.join(path, "state.pkl")):
+            parser.error(f"--continue-steps needs checkpoint folders (model.zip, buffer.npz, state.pkl): {path} is not one")
     th.set_num_threads(1)
 
     def step_of(path: str) -> int:
         found = re.findall(r"\d+", os.path.basename(path))
         return int(found[-1]) if found else 0
 
-    print("| model | run | any | final | sat spk | sat lis | |pre| lis | Q spk | Q lis | Q range | Q out |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for path in sorted(args.models, key=step_of):
-        model = MADDPG.load(path, device="cpu")
+    def rows(name: str, model: MADDPG) -> None:
         for k, (label, beta, constant) in enumerate(run_labels(args.experiment, model.n_runs)):
             d = diagnose(model, k, beta, constant, args.episodes, args.seed)
             low, high = d["Q range"]  # type: ignore[misc]
-            print(f"| {os.path.basename(path)} | {label} | {d['any']:.2f} | {d['final']:.2f} | {d['sat spk']:.2f} | "
+            print(f"| {name} | {label} | {d['any']:.2f} | {d['final']:.2f} | {d['sat spk']:.2f} | "
                   f"{d['sat lis']:.2f} | {d['|pre| lis']:.2f} | {d['Q spk']:.1f} | {d['Q lis']:.1f} | "
                   f"[{low:.0f}, {high:.0f}] | {d['Q out']:.2f} |", flush=True)  # fmt: skip
+
+    print("| model | run | any | final | sat spk | sat lis | |pre| lis | Q spk | Q lis | Q range | Q out |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for path in sorted(args.models, key=step_of):
+        name = os.path.basename(os.path.normpath(path))
+        rows(name, MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu"))
+        for reg in args.preactivation_reg if args.continue_steps else []:
+            rows(f"{name} +{args.continue_steps} (reg {reg:g})", continue_from_checkpoint(path, args.continue_steps, reg))
 
 
 if __name__ == "__main__":

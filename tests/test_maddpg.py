@@ -497,3 +497,36 @@ def test_denormals_are_flushed_during_learn_only_and_the_setting_is_restored(tmp
         th.set_flush_denormal(False)
     model.save(tmp_path / "m.zip")
     assert MADDPG.load(tmp_path / "m.zip").flush_denormal is flush
+
+
+def test_preactivation_reg_is_each_agents_mean_square_and_pulls_saturated_actors_back(tmp_path):
+    for bad in (-1e-3, float("nan"), float("inf"), True, "1e-3"):
+        with pytest.raises(ValueError, match="preactivation_reg must be a finite number >= 0"):
+            MADDPG("MlpPolicy", Rendezvous(), preactivation_reg=bad)
+    model = MADDPG("MlpPolicy", Rendezvous(), preactivation_reg=0.5, policy_kwargs=dict(net_arch=[8]))
+    # agent a has 1 action component, b has 2: a's mean square (1 + 9) / 2 = 5, b's (4 + 16 + 0 + 0) / 4 = 5
+    raw = th.tensor([[[1.0, 2.0, 4.0], [3.0, 0.0, 0.0]]])  # (1 run, batch 2, joint action)
+    assert model._preactivation_penalty(raw).item() == pytest.approx(0.5 * (5 + 5))
+
+    def saturate_then_train(reg: float) -> tuple[float, float]:
+        model = MADDPG("MlpPolicy", Rendezvous(), preactivation_reg=reg, seed=0, policy_kwargs=dict(net_arch=[16]),
+                       learning_starts=50, batch_size=16)  # fmt: skip
+        model.learn(200)
+        with th.no_grad():
+            for parameter in model.actor.parameters():
+                parameter.mul_(5.0)  # drive the actors deep into tanh's flat part
+        obs = th.as_tensor(model.replay_buffer.observations[:200, 0], dtype=th.float32)
+        with th.no_grad():
+            before = model.actor.raw(obs).abs().mean().item()
+        model.learn(300, reset_num_timesteps=False)
+        with th.no_grad():
+            after = model.actor.raw(obs).abs().mean().item()
+        if reg:
+            model.save(tmp_path / "model.zip")
+            assert MADDPG.load(tmp_path / "model.zip").preactivation_reg == reg
+        return before, after
+
+    before, after = saturate_then_train(0.0)
+    assert after > 0.9 * before  # without the penalty the saturated outputs stay (here they grow)
+    before, after = saturate_then_train(1e-2)
+    assert after < 0.5 * before

@@ -245,3 +245,33 @@ def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
             parameter.mul_(50.0)
     saturated = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0)
     assert saturated["sat lis"] > 0.9 and saturated["sat spk"] > 0.9 and saturated["|pre| lis"] > 10.0
+
+
+def test_collapse_diagnostics_continues_a_checkpoint_from_its_exact_state(tmp_path):
+    import pickle
+    import random
+
+    import torch as th
+
+    from sb3_macb import MACB, MADDPG
+    from sb3_macb.common.snapshot import snapshot
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    diagnostics = load_script("collapse_diagnostics")
+    model = MADDPG("MlpPolicy", make_task_vec_env(diagnostics.ENV_ID, 2), n_runs=2, run_seeds=[0, 1], learning_starts=40,
+                   batch_size=8, exploration=[None, MACB(0.8, counts=False)], policy_kwargs=dict(net_arch=[16]))  # fmt: skip
+    model.learn(2 * 60)
+    # a checkpoint as Experiment.save_checkpoint writes it
+    model.save(tmp_path / "model.zip")
+    np.savez(tmp_path / "buffer.npz", **model.replay_buffer.state_arrays())
+    state = {"train_env": snapshot(model.env),
+             "rng": {"numpy": np.random.get_state(), "python": random.getstate(), "torch": th.get_rng_state()}}  # fmt: skip
+    (tmp_path / "state.pkl").write_bytes(pickle.dumps(state))
+
+    first = diagnostics.continue_from_checkpoint(str(tmp_path), 30, 1e-3)
+    again = diagnostics.continue_from_checkpoint(str(tmp_path), 30, 1e-3)
+    plain = diagnostics.continue_from_checkpoint(str(tmp_path), 30, 0.0)
+    assert first.num_timesteps == model.num_timesteps + 2 * 30 and first.preactivation_reg == 1e-3
+    weights = lambda m: th.cat([p.detach().flatten() for p in m.actor.parameters()])  # noqa: E731
+    assert th.equal(weights(first), weights(again))  # the same state and settings give the same continuation
+    assert not th.equal(weights(first), weights(model)) and not th.equal(weights(first), weights(plain))
