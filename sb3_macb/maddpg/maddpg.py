@@ -104,7 +104,8 @@ class MADDPG(TD3):
         actor whose critic keeps asking for more than the bound drives its outputs deep into ``tanh``'s flat part:
         its gradient through ``tanh`` vanishes but Adam rescales it, so the outputs keep growing, and the action
         stays at the bound (docs/results.md shows this in the 400-300 runs with a reward offset). The penalty pulls
-        the outputs back. Discrete agents' logits always get 1e-3, as in the MADDPG paper.
+        the outputs back; it does not change a critic that asks for the bound, so it need not revive such a run.
+        Discrete agents' logits always get 1e-3, as in the MADDPG paper.
     :param _init_setup_model: Whether or not to build the network at the creation of the instance.
     """
 
