@@ -5,7 +5,7 @@ run's ``model.zip``), plays ``--episodes`` noise-free episodes with each run's p
 - ``any`` / ``final``: any-step and final-step success of those episodes (as the evaluations);
 - ``sat spk`` / ``sat lis``: the share of the speaker's and the listener's action components within 0.01 of a bound
   (``|a| > 0.99`` in the actors' [-1, 1] units);
-- ``|pre| lis``: the listener's mean pre-tanh output size (above ~3 the tanh is flat: the actor's gradient through it
+- ``pre lis``: the listener's mean pre-tanh output size (above ~3 the tanh is flat: the actor's gradient through it
   is below 1% of its unsaturated size, so a saturated actor hardly moves back);
 - ``Q spk`` / ``Q lis``: each agent's critic's mean Q(s, pi(s)) on the visited states, beside the range any true
   value can take (``Q range``): with the sparse reward in {-1, 0} plus a bonus in [0, beta] on every transition, the
@@ -102,7 +102,7 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
         short = "spk" if name.startswith("speaker") else "lis" if name.startswith("listener") else name
         out[f"sat {short}"] = float((part.abs() > 0.99).float().mean())
         if short == "lis":
-            out["|pre| lis"] = float(raw_all[:, start : start + width].abs().mean())
+            out["pre lis"] = float(raw_all[:, start : start + width].abs().mean())
         out[f"Q {short}"] = float(q[i].mean())
         start += width
     out["Q out"] = float(((q < bounds[0] - 1.0) | (q > bounds[1] + 1.0)).float().mean())
@@ -160,10 +160,10 @@ def main() -> None:
             d = diagnose(model, k, beta, constant, args.episodes, args.seed)
             low, high = d["Q range"]  # type: ignore[misc]
             print(f"| {name} | {label} | {d['any']:.2f} | {d['final']:.2f} | {d['sat spk']:.2f} | "
-                  f"{d['sat lis']:.2f} | {d['|pre| lis']:.2f} | {d['Q spk']:.1f} | {d['Q lis']:.1f} | "
+                  f"{d['sat lis']:.2f} | {d['pre lis']:.2f} | {d['Q spk']:.1f} | {d['Q lis']:.1f} | "
                   f"[{low:.0f}, {high:.0f}] | {d['Q out']:.2f} |", flush=True)  # fmt: skip
 
-    print("| model | run | any | final | sat spk | sat lis | |pre| lis | Q spk | Q lis | Q range | Q out |")
+    print("| model | run | any | final | sat spk | sat lis | pre lis | Q spk | Q lis | Q range | Q out |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(args.models, key=step_of):
         name = os.path.basename(os.path.normpath(path))

@@ -239,12 +239,12 @@ def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
     assert fresh["Q range"] == pytest.approx((-20.0, 80.0))  # (0.8 - 1) / 0.01 and 0.8 / 0.01
     assert diagnostics.diagnose(model, 0, 0.0, False, episodes=6, seed=0)["Q range"] == pytest.approx((-100.0, 0.0))
     assert 0.0 <= fresh["final"] <= fresh["any"] <= 1.0
-    assert fresh["sat lis"] < 0.5 and fresh["|pre| lis"] < 3.0  # a fresh actor is not saturated
+    assert fresh["sat lis"] < 0.5 and fresh["pre lis"] < 3.0  # a fresh actor is not saturated
     with th.no_grad():
         for parameter in model.actor.parameters():
             parameter.mul_(50.0)
     saturated = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0)
-    assert saturated["sat lis"] > 0.9 and saturated["sat spk"] > 0.9 and saturated["|pre| lis"] > 10.0
+    assert saturated["sat lis"] > 0.9 and saturated["sat spk"] > 0.9 and saturated["pre lis"] > 10.0
 
 
 def test_collapse_diagnostics_continues_a_checkpoint_from_its_exact_state(tmp_path):
