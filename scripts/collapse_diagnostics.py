@@ -16,7 +16,8 @@ run's ``model.zip``), plays ``--episodes`` noise-free episodes with each run's p
     python scripts/collapse_diagnostics.py logs/archive/seed_1/step_*.zip \\
         --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json
 
-``--experiment`` names the pack's runs by their variants (default: run 0, run 1, ...).
+``--experiment`` names the pack's runs by their variants (default: run 0, run 1, ...). Runs started with
+``--keep-models`` (``scripts/reproduce.py``, ``sb3-macb train``) keep every checkpoint's model in ``<work>/models/``.
 
 **Interventions.** Given a checkpoint folder (``model.zip``, ``buffer.npz``, ``state.pkl``, as
 ``scripts/reproduce.py --checkpoint-freq`` writes them) and ``--continue-steps N``, the pack is also trained on from

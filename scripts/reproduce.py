@@ -75,7 +75,7 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
         hyperparams = load_hyperparams(env_id, variants=variants)
         runs.append(RunConfig(seed=seed, folder=os.path.join(root, variant, f"seed_{seed}"), variants=variants, hyperparams=hyperparams))
     config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
-    experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq)
+    experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
     status = experiment.status()
     if status == "started":  # stopped before its first checkpoint: nothing to resume, start it over
         print(f"{work}: stopped before its first checkpoint; starting it again", flush=True)
@@ -98,6 +98,8 @@ def main() -> None:
     parser.add_argument("--pack", type=int, default=1, help="runs trained together in one process (at most)")
     parser.add_argument("-j", "--jobs", type=int, default=1, help="packs in parallel (one thread each)")
     parser.add_argument("--checkpoint-freq", type=int, default=20_000, help="steps per run between checkpoints")
+    parser.add_argument("--keep-models", action="store_true",
+                        help="keep every checkpoint's model in <work>/<pack>/models/ (scripts/collapse_diagnostics.py reads them)")
     parser.add_argument("--suffix", default="", help="results/<Task>-<reward>-SUFFIX/")
     parser.add_argument("-o", "--out", default="results")
     parser.add_argument("--work", default=os.path.join("logs", "reproduce"), help="checkpoints (not for git)")

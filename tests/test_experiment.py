@@ -11,6 +11,7 @@ import zipfile
 
 import numpy as np
 import pytest
+import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_macb
@@ -120,6 +121,21 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
     monkeypatch.setattr(sb3_macb, "__version__", "9.9.9")
     with pytest.raises(ExperimentError, match="written by sb3_macb"):
         Experiment(small_config(tmp_path), folder).run(resume=True)
+
+
+def test_keep_models_keeps_every_checkpoints_model(tmp_path):
+    folder = str(tmp_path / "exp")
+    experiment = Experiment(small_config(tmp_path), folder, checkpoint_freq=50, keep_models=True, verbose=0)
+    experiment.run()
+    models = sorted(os.listdir(os.path.join(folder, "models")), key=lambda name: int(name[5:-4]))
+    assert models == ["step_50.zip", "step_100.zip", "step_150.zip"]  # the checkpoints (none at the end)
+    assert not os.path.exists(os.path.join(folder, "checkpoint"))  # the checkpoint itself goes as before
+    for name in models:
+        model = MADDPG.load(os.path.join(folder, "models", name))
+        assert model.num_timesteps == int(name[5:-4])  # one run: steps per run = steps
+    final = MADDPG.load(str(tmp_path / "run" / "model.zip"))
+    kept = MADDPG.load(os.path.join(folder, "models", "step_150.zip"))
+    assert not th.equal(next(iter(final.actor.parameters())), next(iter(kept.actor.parameters())))
 
 
 def test_resume_from_the_folder_alone_and_a_finished_experiment(tmp_path):

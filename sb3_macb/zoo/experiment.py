@@ -45,6 +45,7 @@ from sb3_macb.maddpg import MADDPG
 DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "hyperparams", "maddpg.yml")
 EXPERIMENT_FILE = "experiment.json"
 CHECKPOINT_DIR = "checkpoint"
+MODELS_DIR = "models"  # every checkpoint's model, with keep_models
 
 # Hyperparameters that may differ between the runs of one pack; everything else must be equal
 PACKABLE = ("exploration", "noise_std")
@@ -372,6 +373,9 @@ class Experiment:
     :param checkpoint_freq: Steps per run between checkpoints (None: no checkpoints).
     :param keep_checkpoint: Keep the last checkpoint when the experiment ends (by default it is deleted: the replay
         buffer makes it large).
+    :param keep_models: Also keep every checkpoint's model (the pack's ``model.zip``, without the replay buffer) as
+        ``models/step_<N>.zip`` in ``folder``, for looking inside a run as it went (the checkpoint folder holds only
+        the latest). Each is the size of one model of the pack (26 MB for three 400-300 runs).
     :param verbose: 1 prints a line per checkpoint and at the end.
     :param progress_bar: Show SB3's progress bar.
     :param tensorboard_log: Folder for TensorBoard logs (None: none).
@@ -384,13 +388,14 @@ class Experiment:
     def __init__(self, config: ExperimentConfig, folder: str, checkpoint_freq: int | None = None,
                  keep_checkpoint: bool = False, verbose: int = 1, progress_bar: bool = False,
                  tensorboard_log: str | None = None, log_interval: int | None = None, eval_log_freq: int | None = None,
-                 save_best: bool = False):  # fmt: skip
+                 save_best: bool = False, keep_models: bool = False):  # fmt: skip
         if checkpoint_freq is not None and checkpoint_freq < 1:
             raise ExperimentError(f"checkpoint_freq must be >= 1 step, got {checkpoint_freq}")
         self.config = config
         self.folder = folder
         self.checkpoint_freq = checkpoint_freq
         self.keep_checkpoint = keep_checkpoint
+        self.keep_models = keep_models
         self.verbose = verbose
         self.progress_bar = progress_bar
         self.tensorboard_log = tensorboard_log
@@ -612,6 +617,11 @@ class Experiment:
         final = os.path.join(root, name)
         shutil.rmtree(final, ignore_errors=True)
         os.replace(tmp, final)
+        if self.keep_models:
+            models = os.path.join(self.folder, MODELS_DIR)
+            os.makedirs(models, exist_ok=True)
+            with open(os.path.join(final, "model.zip"), "rb") as source, atomic_write(os.path.join(models, f"{name}.zip")) as file:
+                shutil.copyfileobj(source, file)
         with atomic_write(os.path.join(root, "LATEST")) as file:
             file.write(name.encode())
         for entry in os.listdir(root):
@@ -708,8 +718,8 @@ def run_experiment(
     return log_folder
 
 
-def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: int = 1) -> Experiment:
-    """The experiment stored in ``folder`` (its ``experiment.json``), to resume."""
+def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: int = 1, keep_models: bool = False) -> Experiment:
+    """The experiment stored in ``folder`` (its ``experiment.json``), to resume (the arguments as :class:`Experiment`'s)."""
     path = os.path.join(folder, EXPERIMENT_FILE)
     try:
         with open(path) as file:
@@ -717,18 +727,19 @@ def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: in
         config = ExperimentConfig(**saved["config"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ExperimentError(f"{path} is missing or not a readable experiment file ({exc})") from None
-    return Experiment(config, folder, checkpoint_freq=checkpoint_freq, verbose=verbose)
+    return Experiment(config, folder, checkpoint_freq=checkpoint_freq, verbose=verbose, keep_models=keep_models)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Resume an experiment folder (sb3_macb.zoo.experiment).")
     parser.add_argument("--resume", required=True, metavar="FOLDER", help="the experiment's folder")
     parser.add_argument("--checkpoint-freq", type=int, default=None, help="steps per run between checkpoints")
+    parser.add_argument("--keep-models", action="store_true", help="keep every checkpoint's model in FOLDER/models/")
     parser.add_argument("--num-threads", type=int, default=1)
     args = parser.parse_args(argv)
     th.set_num_threads(args.num_threads)
     try:
-        load_experiment(args.resume, checkpoint_freq=args.checkpoint_freq).run(resume=True)
+        load_experiment(args.resume, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models).run(resume=True)
     except ExperimentError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -141,6 +141,7 @@ def make_parser() -> argparse.ArgumentParser:
         "module, as rl_zoo3 does (only for files you trust); by default they are parsed without running code")  # fmt: skip
     add("--checkpoint-freq", type=int, default=None, help="checkpoint every N steps into the run folder")
     add("--resume", metavar="RUN_FOLDER", default=None, help="continue a checkpointed run (same command)")
+    add("--keep-models", action="store_true", help="keep every checkpoint's model as RUN_FOLDER/models/step_N.zip")
     search = parser.add_argument_group("hyperparameter search (rl_zoo3's Optuna optimizer)")
     search.add_argument("-optimize", "--optimize-hyperparameters", "--optimize", dest="optimize", action="store_true")
     search.add_argument("--n-trials", type=int, default=500)
@@ -272,6 +273,7 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
         log_interval=args.log_interval if args.verbose > 0 else None,
         eval_log_freq=None if args.verbose == 0 else 1 if args.verbose >= 2 else 100,
         save_best=True,
+        keep_models=args.keep_models,
     )
     experiment.run(resume=bool(args.resume))
     return folder
