@@ -35,16 +35,15 @@ A post-hoc diagnosis: it decides nothing registered.
 import argparse
 import json
 import os
-import pickle
-import random
 import re
 
 import numpy as np
 import torch as th
 
+import sb3_macb
 from sb3_macb import MADDPG
-from sb3_macb.common.snapshot import restore
 from sb3_macb.envs.vec_tasks import make_task_vec_env
+from sb3_macb.zoo.experiment import load_checkpoint, restore_global_rngs
 
 ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
 
@@ -78,12 +77,12 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     for _ in range(10_000):
         with th.no_grad():
             obs_t = th.as_tensor(obs, dtype=th.float32)
-            action, raw = solo.actor(obs_t), solo.actor.raw(obs_t)
+            raw = solo.actor.raw(obs_t)  # one pass: the squashed action and the env's action follow from it
+            action = solo.actor.squash(raw)
         observations.append(obs_t)
         actions.append(action)
         raws.append(raw)
-        env_action, _ = solo.predict(obs, deterministic=True)
-        obs, _, dones, infos = env.step(env_action)
+        obs, _, dones, infos = env.step(solo.policy.unscale_action(action.numpy()))  # as predict(deterministic=True)
         success = np.array([info["agent_infos"]["listener_0"]["success"] for info in infos])
         reached |= success
         if dones.all():
@@ -116,15 +115,10 @@ def continue_from_checkpoint(folder: str, steps: int, preactivation_reg: float) 
     The pack of checkpoint ``folder`` trained ``steps`` more steps per run with ``preactivation_reg``, from the
     checkpoint's exact state (as ``Experiment`` resumes it, without its evaluation callback: nothing is written).
     """
-    with open(os.path.join(folder, "state.pkl"), "rb") as file:
-        state = pickle.load(file)  # a checkpoint this machine's runs wrote (pickle: only files you trust)
-    model = MADDPG.load(os.path.join(folder, "model.zip"), env=None, device="cpu")
-    model.set_env(restore(state["train_env"]), force_reset=False)
-    with np.load(os.path.join(folder, "buffer.npz")) as arrays:
-        model.replay_buffer.load_state_arrays(arrays)  # type: ignore[attr-defined]
-    np.random.set_state(state["rng"]["numpy"])
-    random.setstate(state["rng"]["python"])
-    th.set_rng_state(state["rng"]["torch"])
+    model, state = load_checkpoint(folder, allow_other_version=True)  # (a checkpoint this machine's runs wrote)
+    if state.get("sb3_macb") != sb3_macb.__version__:
+        print(f"note: {folder} was written by sb3_macb {state.get('sb3_macb')}, continued with {sb3_macb.__version__}")
+    restore_global_rngs(state)
     model.preactivation_reg = float(preactivation_reg)
     model.learn(steps * model.n_runs, reset_num_timesteps=False)
     return model

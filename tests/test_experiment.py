@@ -22,6 +22,7 @@ from sb3_macb.zoo.experiment import (
     ExperimentConfig,
     ExperimentError,
     RunConfig,
+    load_checkpoint,
     load_experiment,
     load_hyperparams,
     safe_eval,
@@ -121,6 +122,9 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
     monkeypatch.setattr(sb3_macb, "__version__", "9.9.9")
     with pytest.raises(ExperimentError, match="written by sb3_macb"):
         Experiment(small_config(tmp_path), folder).run(resume=True)
+    # the diagnosis may read another version's checkpoint: past the version check, to the damaged model
+    with pytest.raises(ExperimentError, match="model.zip is missing or damaged"):
+        load_checkpoint(checkpoint, allow_other_version=True)
 
 
 def test_keep_models_keeps_every_checkpoints_model(tmp_path):

@@ -507,6 +507,12 @@ def test_preactivation_reg_is_each_agents_mean_square_and_pulls_saturated_actors
     # agent a has 1 action component, b has 2: a's mean square (1 + 9) / 2 = 5, b's (4 + 16 + 0 + 0) / 4 = 5
     raw = th.tensor([[[1.0, 2.0, 4.0], [3.0, 0.0, 0.0]]])  # (1 run, batch 2, joint action)
     assert model._preactivation_penalty(raw).item() == pytest.approx(0.5 * (5 + 5))
+    # a mixed pack (agent a Discrete(3): 3 logits, b continuous): only b's components count, and each run's sum
+    mixed_env = make_vec_env(lambda: make_joint_env(Rendezvous(discrete=True)), n_envs=2, seed=0)
+    mixed = MADDPG("MlpPolicy", mixed_env, preactivation_reg=0.5, n_runs=2,
+                   policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+    raw = th.tensor([[[9.0, 9.0, 9.0, 2.0, 4.0]], [[9.0, 9.0, 9.0, 1.0, 1.0]]])  # (2 runs, batch 1, joint action)
+    assert mixed._preactivation_penalty(raw).item() == pytest.approx(0.5 * ((4 + 16) / 2 + (1 + 1) / 2))
 
     def saturate_then_train(reg: float) -> tuple[float, float]:
         model = MADDPG("MlpPolicy", Rendezvous(), preactivation_reg=reg, seed=0, policy_kwargs=dict(net_arch=[16]),

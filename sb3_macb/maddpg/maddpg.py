@@ -422,6 +422,13 @@ class MADDPG(TD3):
         self._critic_target_params = list(self.critic_target.parameters())
         # the joint action's entries of discrete agents (None: every agent is continuous), read at every step
         self._discrete_mask = layout.discrete_action_mask if self.actor.has_discrete else None
+        # preactivation_reg's weight of each joint-action component: 1 / its agent's action_dim for continuous
+        # components (a per-agent mean), 0 for discrete ones (their logits have their own penalty)
+        dims = np.asarray(layout.action_dims)
+        weights = th.as_tensor(np.repeat(1.0 / dims, dims), dtype=th.float32, device=self.device)
+        if self.actor.has_discrete:
+            weights = weights.masked_fill(self.actor.discrete_mask, 0.0)
+        self._preactivation_weights = weights
 
     def _share_groups(self, layout: AgentLayout) -> list[list[int]] | None:
         """
@@ -529,7 +536,7 @@ class MADDPG(TD3):
                     pi = self.actor.squash(raw, gumbel, straight_through=True).unsqueeze(1)
                     penalty = 1e-3 * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
                     if self.preactivation_reg > 0:
-                        penalty = penalty + self._preactivation_penalty(raw, ~self.actor.discrete_mask)
+                        penalty = penalty + self._preactivation_penalty(raw)
                 elif self.preactivation_reg > 0:
                     raw = self.actor.raw(data.observations)
                     pi = self.actor.squash(raw).unsqueeze(1)
@@ -557,19 +564,15 @@ class MADDPG(TD3):
             self.logger.record("train/actor_loss", th.stack(actor_losses).mean().item() / groups)
         self.logger.record("train/critic_loss", th.stack(critic_losses).mean().item() / groups)
 
-    def _preactivation_penalty(self, raw: th.Tensor, mask: th.Tensor | None = None) -> th.Tensor:
+    def _preactivation_penalty(self, raw: th.Tensor) -> th.Tensor:
         """
-        ``preactivation_reg`` times, summed over runs and agents, each agent's mean squared pre-``tanh`` output (the
-        mean over the minibatch and the agent's own action components, as the MADDPG code's per-agent loss).
+        ``preactivation_reg`` times, summed over runs and agents, each continuous agent's mean squared pre-``tanh``
+        output (the mean over the minibatch and the agent's own action components, as the MADDPG code's per-agent
+        loss). Discrete components are left out (weight 0).
 
         :param raw: (n_runs, batch, action_dim) outputs before squashing.
-        :param mask: The action components to penalize (None: all).
         """
-        dims = np.asarray(self.agent_layout.action_dims)  # type: ignore[union-attr]
-        weights = th.as_tensor(np.repeat(1.0 / dims, dims), dtype=raw.dtype, device=raw.device)
-        if mask is not None:
-            weights = weights * mask.to(raw.dtype)
-        return self.preactivation_reg * (raw.pow(2).mean(dim=-2) * weights).sum()
+        return self.preactivation_reg * (raw.pow(2).mean(dim=-2) * self._preactivation_weights).sum()
 
     def learn(
         self: SelfMADDPG,
@@ -635,6 +638,7 @@ class MADDPG(TD3):
             *super()._excluded_save_params(),
             "_action_masks",
             "_discrete_mask",
+            "_preactivation_weights",
             "_actor_params",
             "_actor_target_params",
             "_critic_params",

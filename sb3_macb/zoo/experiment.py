@@ -641,39 +641,67 @@ class Experiment:
                 name = file.read().strip()
         except OSError:
             raise ExperimentError(f"{latest} cannot be read: no checkpoint to resume from") from None
-        folder = os.path.join(root, name)
-        state_file = os.path.join(folder, "state.pkl")
-        try:
-            with open(state_file, "rb") as file:
-                state = pickle.load(file)
-        except Exception as exc:  # noqa: BLE001 (any unpickling failure means a damaged file)
-            raise ExperimentError(f"{state_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
-        if state.get("sb3_macb") != sb3_macb.__version__:
-            raise ExperimentError(f"{state_file} was written by sb3_macb {state.get('sb3_macb')}, this is {sb3_macb.__version__}")
-        if state.get("config") != self.config.comparable():
-            raise ExperimentError(f"{state_file} belongs to other settings than {os.path.join(self.folder, EXPERIMENT_FILE)}")
-        model_file = os.path.join(folder, "model.zip")
-        try:
-            model = MADDPG.load(model_file, env=None, device="cpu")
-        except Exception as exc:  # noqa: BLE001
-            raise ExperimentError(f"{model_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
-        model.set_env(restore(state["train_env"]), force_reset=False)
-        buffer_file = os.path.join(folder, "buffer.npz")
-        try:
-            with np.load(buffer_file) as arrays:
-                model.replay_buffer.load_state_arrays(arrays)  # type: ignore[attr-defined]
-        except Exception as exc:  # noqa: BLE001
-            raise ExperimentError(f"{buffer_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+        model, state = load_checkpoint(os.path.join(root, name), config=self.config.comparable(),
+                                       experiment_file=os.path.join(self.folder, EXPERIMENT_FILE))  # fmt: skip
         callback = self._eval_callback(restore(state["eval_env"]))
         callback.set_state(state["callback"])
-        np.random.set_state(state["rng"]["numpy"])
-        random.setstate(state["rng"]["python"])
-        th.set_rng_state(state["rng"]["torch"])
+        restore_global_rngs(state)
         self.last_checkpoint = state["steps"]
         self._elapsed_before = state["elapsed"]
         if self.verbose:
             print(f"{self.folder}: resuming at {state['steps']} of {self.config.n_timesteps} steps per run", flush=True)
         return model, callback
+
+
+def load_checkpoint(
+    folder: str,
+    config: dict[str, Any] | None = None,
+    experiment_file: str = EXPERIMENT_FILE,
+    allow_other_version: bool = False,
+) -> tuple[MADDPG, dict[str, Any]]:
+    """
+    The model of checkpoint ``folder`` with its training env and replay buffer restored, and the checkpoint's state
+    (steps, elapsed time, evaluation callback state, env snapshots, random states). The global random states are not
+    touched: call :func:`restore_global_rngs` when everything that precedes the resumed steps has been built.
+
+    Checkpoints hold pickles: load only those your own runs wrote.
+
+    :param folder: A checkpoint folder (``checkpoint/step_N`` of an experiment).
+    :param config: The experiment's comparable settings, which the checkpoint must match (None: not checked).
+    :param experiment_file: The file ``config`` comes from, named in the error.
+    :param allow_other_version: Accept a checkpoint written by another sb3_macb version (for diagnosis: a version
+        whose arithmetic differs does not continue the run exactly).
+    """
+    state_file = os.path.join(folder, "state.pkl")
+    try:
+        with open(state_file, "rb") as file:
+            state = pickle.load(file)
+    except Exception as exc:  # noqa: BLE001 (any unpickling failure means a damaged file)
+        raise ExperimentError(f"{state_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+    if state.get("sb3_macb") != sb3_macb.__version__ and not allow_other_version:
+        raise ExperimentError(f"{state_file} was written by sb3_macb {state.get('sb3_macb')}, this is {sb3_macb.__version__}")
+    if config is not None and state.get("config") != config:
+        raise ExperimentError(f"{state_file} belongs to other settings than {experiment_file}")
+    model_file = os.path.join(folder, "model.zip")
+    try:
+        model = MADDPG.load(model_file, env=None, device="cpu")
+    except Exception as exc:  # noqa: BLE001
+        raise ExperimentError(f"{model_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+    model.set_env(restore(state["train_env"]), force_reset=False)
+    buffer_file = os.path.join(folder, "buffer.npz")
+    try:
+        with np.load(buffer_file) as arrays:
+            model.replay_buffer.load_state_arrays(arrays)  # type: ignore[attr-defined]
+    except Exception as exc:  # noqa: BLE001
+        raise ExperimentError(f"{buffer_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+    return model, state
+
+
+def restore_global_rngs(state: dict[str, Any]) -> None:
+    """Set numpy's, Python's and torch's global random states to those a checkpoint's ``state`` recorded."""
+    np.random.set_state(state["rng"]["numpy"])
+    random.setstate(state["rng"]["python"])
+    th.set_rng_state(state["rng"]["torch"])
 
 
 def run_experiment(
