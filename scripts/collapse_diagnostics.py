@@ -29,6 +29,33 @@ Nothing is written: the checkpoint and the runs' files stay as they are.
         --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json \\
         --continue-steps 5000 --preactivation-reg 0 1e-3
 
+**The critics on their own data.** With ``--on-buffer``, each checkpoint folder's replay buffer is read too, and for
+each run, over the whole buffer (``all``) and over its newest ``--recent`` transitions (``recent``), a second table
+gives, on ``--samples`` transitions drawn from the run's own column (seed ``--seed``):
+
+- ``Q spk (s,a)`` / ``Q lis (s,a)``: each critic on the stored state and joint action;
+- ``TD spk`` / ``TD lis``: its mean error against its own target, r + bonus + gamma * Q'(s', pi'(s')) (target
+  networks; time limits bootstrapped, as in training; the bonus from the run's own counts, as a sampled minibatch
+  gets it), and ``|TD|`` its mean size. A critic that fits its data has |TD| well below 1; a mean TD that is large
+  and of one sign is a critic running away from its own target;
+- ``gap spk`` / ``gap lis``: at s', the critic's (target network's) value of the target policy's joint action minus
+  its value of the joint action the run actually took next (the following row of the same episode; transitions
+  that end an episode are left out), and ``gap(lis)`` the same with only the listener's action replaced. The target
+  bootstraps from the policy's action, so a critic that holds a steady gap G fits a level about (r + gamma G) /
+  (1 - gamma), i.e. 100 G at gamma 0.99 away from where the data's own actions would put it: a small error in how
+  a critic ranks the policy's action against the taken one becomes a large error in its values. With the true Q,
+  G is bounded by the range of values; ``r`` is the mean reward with bonus;
+- ``lis dist`` / ``lis speed``: the listener's mean distance to the nearest landmark and its mean speed in those
+  transitions (where its behaviour took it).
+
+    python scripts/collapse_diagnostics.py logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/checkpoint/step_300000 \\
+        --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json --on-buffer
+
+With ``--buffer-of <checkpoint folder>``, earlier models of the same pack (archived ``model.zip`` files) are measured
+on that checkpoint's buffer, each on the rows it had collected by its own step (the buffer only grows until it is
+full, so those rows are exactly the model's own data). The bonus then comes from the checkpoint's counts, not the
+model's: exact for the constant bonus, and for MACB at k = 512 a difference on a few transitions.
+
 A post-hoc diagnosis: it decides nothing registered.
 """
 
@@ -36,6 +63,7 @@ import argparse
 import json
 import os
 import re
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -110,6 +138,78 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     return out
 
 
+def buffer_rows(model: MADDPG, newest: int | None = None) -> np.ndarray:
+    """The filled rows of the pack's replay buffer, oldest first (only the ``newest`` ones if given)."""
+    buffer = model.replay_buffer
+    if buffer is None:
+        raise ValueError("the model has no replay buffer (a checkpoint folder's model has one)")
+    size, pos = buffer.buffer_size, buffer.pos  # type: ignore[union-attr]
+    rows = (np.arange(size) + pos) % size if buffer.full else np.arange(pos)  # type: ignore[union-attr]
+    return rows if newest is None else rows[-newest:]
+
+
+def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed: int, buffer: Any = None) -> dict[str, float]:
+    """
+    Run ``k``'s critics on ``samples`` transitions drawn from the buffer rows ``candidates`` of its own column of the
+    pack's replay buffer (see the module docstring).
+
+    :param buffer: Another pack's buffer of the same runs (a later checkpoint's; default: the model's own).
+    """
+    buffer = model.replay_buffer if buffer is None else buffer
+    column = k * buffer.envs_per_run  # type: ignore[union-attr]
+    rows = candidates[np.random.default_rng(seed).integers(0, len(candidates), size=samples)]
+    # the bonus as a minibatch gets it (the pack's method asks for every run's rows: the same rows of their own columns)
+    batch_inds = np.broadcast_to(rows, (model.n_runs, samples))
+    env_inds = np.broadcast_to((np.arange(model.n_runs) * buffer.envs_per_run)[:, None], (model.n_runs, samples))  # type: ignore[union-attr]
+    bonus = np.asarray(buffer._bonus(batch_inds, env_inds))  # type: ignore[union-attr]
+    bonus = bonus[k] if bonus.ndim else bonus  # (samples, n_agents), or 0.0 without MACB
+    rewards = buffer.agent_rewards[rows, column] + bonus  # type: ignore[union-attr]
+    not_done = 1.0 - buffer.dones[rows, column] * (1.0 - buffer.timeouts[rows, column])  # type: ignore[union-attr]
+
+    def pack(array: np.ndarray) -> th.Tensor:
+        # the pack's networks take (n_runs, batch, dim): run k's rows in its slot, zeros (ignored) elsewhere
+        out = th.zeros((model.n_runs, *array.shape), dtype=th.float32)
+        out[k] = th.as_tensor(array, dtype=th.float32)
+        return out
+
+    obs = pack(buffer.observations[rows, column])  # type: ignore[union-attr]
+    actions = pack(buffer.actions[rows, column])  # type: ignore[union-attr]
+    next_obs = pack(buffer.next_observations[rows, column])  # type: ignore[union-attr]
+    with th.no_grad():
+        q = model.critic(obs, actions)[0, k].numpy()  # (n_agents, samples) of the first critic
+        next_q = model.critic_target(next_obs, model.actor_target(next_obs))
+        next_q = (next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0])[k].numpy()
+    td = q - (rewards.T + model.gamma * not_done * next_q)
+    layout = model.agent_layout
+    index = next(i for i, name in enumerate(layout.agents) if name.startswith("listener"))  # type: ignore[union-attr]
+    # the gap at s' between the target policy's actions (what the target bootstraps from) and the actions the run
+    # took next (the following row of the same episode), by the target critic: all agents' actions, and the listener's
+    following = (rows + 1) % buffer.buffer_size  # type: ignore[union-attr]
+    continuing = np.isin(following, candidates) & (buffer.dones[rows, column] == 0) & np.all(  # type: ignore[union-attr]
+        buffer.observations[following, column] == buffer.next_observations[rows, column], axis=-1)  # type: ignore[union-attr]
+    taken = pack(buffer.actions[following[continuing], column])  # type: ignore[union-attr]
+    with th.no_grad():
+        s2 = next_obs[:, continuing]
+        policy = model.actor_target(s2)
+        listener_only = taken.clone()
+        listener_only[..., layout.action_slices[index]] = policy[..., layout.action_slices[index]]
+        q_taken = model.critic_target(s2, taken)[0, k]
+        gap = (model.critic_target(s2, policy)[0, k] - q_taken).mean(dim=-1).numpy()
+        gap_listener = (model.critic_target(s2, listener_only)[0, k] - q_taken).mean(dim=-1).numpy()
+    listener = buffer.observations[rows, column, layout.obs_slices[index]]  # type: ignore[union-attr]
+    distances = np.linalg.norm(listener[:, 2:8].reshape(-1, 3, 2), axis=-1)  # velocity, then 3 landmarks relative
+    out = {"lis dist": float(distances.min(axis=-1).mean()), "lis speed": float(np.linalg.norm(listener[:, :2], axis=-1).mean()),
+           "r": float(rewards.mean()), "continuing": float(continuing.mean())}  # fmt: skip
+    for i, name in enumerate(layout.agents):  # type: ignore[union-attr]
+        short = "spk" if name.startswith("speaker") else "lis" if name.startswith("listener") else name
+        out[f"Q {short}"] = float(q[i].mean())
+        out[f"TD {short}"] = float(td[i].mean())
+        out[f"|TD| {short}"] = float(np.abs(td[i]).mean())
+        out[f"gap {short}"] = float(gap[i])
+        out[f"gap lis {short}"] = float(gap_listener[i])
+    return out
+
+
 def continue_from_checkpoint(folder: str, steps: int, preactivation_reg: float) -> MADDPG:
     """
     The pack of checkpoint ``folder`` trained ``steps`` more steps per run with ``preactivation_reg``, from the
@@ -134,16 +234,29 @@ def main() -> None:
                         help="train checkpoint folders on for this many steps per run, then measure again")
     parser.add_argument("--preactivation-reg", type=float, nargs="+", default=[0.0],
                         help="preactivation_reg values for --continue-steps (one continuation each)")  # fmt: skip
+    parser.add_argument("--on-buffer", action="store_true",
+                        help="also measure the critics on checkpoint folders' replay buffers (second table)")  # fmt: skip
+    parser.add_argument("--buffer-of", default=None,
+                        help="--on-buffer for earlier models (model.zip files) of a pack: each on the rows of this later "
+                             "checkpoint folder's buffer that it had collected by its step")  # fmt: skip
+    parser.add_argument("--recent", type=int, default=20_000, help="--on-buffer: the newest transitions per run")
+    parser.add_argument("--samples", type=int, default=20_000, help="--on-buffer: transitions drawn per window")
     args = parser.parse_args()
     if args.episodes < 1:
         parser.error(f"--episodes must be at least 1, got {args.episodes}")
     if args.continue_steps < 0:
         parser.error(f"--continue-steps must be at least 0, got {args.continue_steps}")
+    if args.buffer_of and not (args.on_buffer and os.path.isfile(os.path.join(args.buffer_of, "state.pkl"))):
+        parser.error(f"--buffer-of needs --on-buffer and a checkpoint folder, got {args.buffer_of}")
+    if args.recent < 1 or args.samples < 1:
+        parser.error(f"--recent and --samples must be at least 1, got {args.recent} and {args.samples}")
     for path in args.models:
         if not os.path.exists(path):
             parser.error(f"{path} does not exist")
-        if args.continue_steps and not os.path.isfile(os.path.join(path, "state.pkl")):
-            parser.error(f"--continue-steps needs checkpoint folders (model.zip, buffer.npz, state.pkl): {path} is not one")
+        if (args.continue_steps or (args.on_buffer and not args.buffer_of)) \
+                and not os.path.isfile(os.path.join(path, "state.pkl")):
+            option = "--continue-steps" if args.continue_steps else "--on-buffer"
+            parser.error(f"{option} needs checkpoint folders (model.zip, buffer.npz, state.pkl): {path} is not one")
     th.set_num_threads(1)
 
     def step_of(path: str) -> int:
@@ -165,6 +278,38 @@ def main() -> None:
         rows(name, MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu"))
         for reg in args.preactivation_reg if args.continue_steps else []:
             rows(f"{name} +{args.continue_steps} (reg {reg:g})", continue_from_checkpoint(path, args.continue_steps, reg))
+    if not args.on_buffer:
+        return
+    source = None
+    if args.buffer_of:  # earlier models of the same pack, on the transitions they had collected by their step
+        source, _ = load_checkpoint(args.buffer_of, allow_other_version=True)
+        if source.replay_buffer.full:  # type: ignore[union-attr]
+            raise SystemExit(f"{args.buffer_of}: its replay buffer has wrapped around; earlier models' rows are gone")
+    print()
+    print("| model | run | transitions | r | Q spk (s,a) | TD spk | abs TD spk | gap spk | gap(lis) spk | Q lis (s,a) | TD lis "
+          "| abs TD lis | gap lis | gap(lis) lis | lis dist | lis speed |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for path in sorted(args.models, key=step_of):
+        if source is None:
+            model, _ = load_checkpoint(path, allow_other_version=True)
+            buffer, everything = model.replay_buffer, buffer_rows(model)
+        else:
+            model = MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu")
+            buffer = source.replay_buffer
+            rows = model.num_timesteps // buffer.n_envs  # type: ignore[union-attr]
+            if model.n_runs != source.n_runs or rows > buffer.pos:  # type: ignore[union-attr]
+                raise SystemExit(f"{path} is not an earlier model of the pack of {args.buffer_of}")
+            everything = np.arange(rows)
+        newest = everything[-args.recent :]
+        for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model.n_runs)):
+            for window, candidates in ((f"all {len(everything)}", everything), (f"newest {len(newest)}", newest)):
+                d = on_buffer(model, k, candidates, args.samples, args.seed, buffer)
+                cells = [os.path.basename(os.path.normpath(path)), label, window, f"{d['r']:+.2f}"]
+                for short in ("spk", "lis"):
+                    cells += [f"{d[f'Q {short}']:.1f}", f"{d[f'TD {short}']:+.2f}", f"{d[f'|TD| {short}']:.2f}",
+                              f"{d[f'gap {short}']:+.2f}", f"{d[f'gap lis {short}']:+.2f}"]  # fmt: skip
+                cells += [f"{d['lis dist']:.2f}", f"{d['lis speed']:.2f}"]
+                print("| " + " | ".join(cells) + " |", flush=True)
 
 
 if __name__ == "__main__":

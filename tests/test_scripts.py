@@ -275,3 +275,49 @@ def test_collapse_diagnostics_continues_a_checkpoint_from_its_exact_state(tmp_pa
     weights = lambda m: th.cat([p.detach().flatten() for p in m.actor.parameters()])  # noqa: E731
     assert th.equal(weights(first), weights(again))  # the same state and settings give the same continuation
     assert not th.equal(weights(first), weights(model)) and not th.equal(weights(first), weights(plain))
+
+
+def test_collapse_diagnostics_on_buffer_measures_each_critic_against_its_own_target():
+    import torch as th
+
+    from sb3_macb import MACB, MADDPG
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    diagnostics = load_script("collapse_diagnostics")
+    model = MADDPG("MlpPolicy", make_task_vec_env(diagnostics.ENV_ID, 2), n_runs=2, run_seeds=[0, 1], learning_starts=40,
+                   batch_size=8, exploration=[None, MACB(0.8, counts=False)], policy_kwargs=dict(net_arch=[16]))  # fmt: skip
+    model.learn(2 * 100)
+    buffer = model.replay_buffer
+    assert list(diagnostics.buffer_rows(model)) == list(range(100))
+    assert list(diagnostics.buffer_rows(model, 30)) == list(range(70, 100))
+    trained = diagnostics.on_buffer(model, 1, diagnostics.buffer_rows(model), 500, seed=3)
+    assert trained["|TD| spk"] >= abs(trained["TD spk"]) > 0 and trained["lis speed"] > 0 and trained["lis dist"] > 0
+    with th.no_grad():  # critics that say 0 everywhere: each TD error is minus the reward the critic learns
+        for parameter in [*model.critic.parameters(), *model.critic_target.parameters()]:
+            parameter.zero_()
+    candidates = diagnostics.buffer_rows(model, 50)
+    rows = candidates[np.random.default_rng(3).integers(0, len(candidates), size=500)]
+    for k, bonus in ((0, 0.0), (1, 0.8)):  # MADDPG's run gets no bonus, the constant-bonus run 0.8 on every transition
+        d = diagnostics.on_buffer(model, k, candidates, 500, seed=3)
+        rewards = buffer.agent_rewards[rows, k].astype(np.float64) + bonus
+        assert d["Q spk"] == 0.0 and d["Q lis"] == 0.0
+        assert d["TD spk"] == pytest.approx(-rewards[:, 0].mean(), abs=1e-5)
+        assert d["TD lis"] == pytest.approx(-rewards[:, 1].mean(), abs=1e-5)
+    # the gap: a target critic that is the sum of the listener's action components, a target policy that puts them at
+    # +1: at s' the policy's action is worth 2 - (the listener's next stored action summed); an episode's last
+    # transition (row 19 of the 20-step first episode) has no next action in its episode and is left out
+    listener = model.agent_layout.action_slices[1]
+    assert model.agent_layout.agents[1].startswith("listener") and buffer.dones[19, 1] == 1 and buffer.dones[:19, 1].sum() == 0
+    model.critic_target = lambda obs, act: act[..., listener].sum(-1)[None, :, None, :].expand(1, 2, 2, -1)
+    model.actor_target = lambda obs: th.ones((*obs.shape[:-1], 5))
+    first_episode = np.arange(20)
+    rows = first_episode[np.random.default_rng(4).integers(0, 20, size=300)]
+    rows = rows[rows < 19]
+    expected = (2.0 - buffer.actions[rows + 1, 1, listener].sum(-1)).mean()
+    d = diagnostics.on_buffer(model, 1, first_episode, 300, seed=4)
+    assert d["continuing"] == pytest.approx(len(rows) / 300)
+    for key in ("gap spk", "gap lis", "gap lis spk", "gap lis lis"):
+        assert d[key] == pytest.approx(expected, abs=1e-5)
+    # a buffer that has wrapped around: the newest rows are those just before the write position
+    buffer.full, buffer.pos = True, 10
+    assert list(diagnostics.buffer_rows(model, 3)) == [7, 8, 9] and len(diagnostics.buffer_rows(model)) == buffer.buffer_size
