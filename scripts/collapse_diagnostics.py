@@ -45,6 +45,9 @@ gives, on ``--samples`` transitions drawn from the run's own column (seed ``--se
   (1 - gamma), i.e. 100 G at gamma 0.99 away from where the data's own actions would put it: a small error in how
   a critic ranks the policy's action against the taken one becomes a large error in its values. With the true Q,
   G is bounded by the range of values; ``r`` is the mean reward with bonus;
+- ``end spk`` / ``end lis``: the critic's target value Q'(s', pi'(s')) at the transitions that end an episode (time
+  limits, bootstrapped): the states the target takes its values from last, beside ``lis dist end``, the listener's
+  distance to the nearest landmark there;
 - ``lis dist`` / ``lis speed``: the listener's mean distance to the nearest landmark and its mean speed in those
   transitions (where its behaviour took it).
 
@@ -198,14 +201,20 @@ def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed:
         gap_listener = (model.critic_target(s2, listener_only)[0, k] - q_taken).mean(dim=-1).numpy()
     listener = buffer.observations[rows, column, layout.obs_slices[index]]  # type: ignore[union-attr]
     distances = np.linalg.norm(listener[:, 2:8].reshape(-1, 3, 2), axis=-1)  # velocity, then 3 landmarks relative
+    # where episodes end (time limits): the states the target bootstraps from last, and how far the listener is there
+    ending = buffer.timeouts[rows, column] == 1  # type: ignore[union-attr]
+    listener_end = buffer.next_observations[rows[ending], column, layout.obs_slices[index]]  # type: ignore[union-attr]
+    distances_end = np.linalg.norm(listener_end[:, 2:8].reshape(-1, 3, 2), axis=-1).min(axis=-1)
     out = {"lis dist": float(distances.min(axis=-1).mean()), "lis speed": float(np.linalg.norm(listener[:, :2], axis=-1).mean()),
-           "r": float(rewards.mean()), "continuing": float(continuing.mean())}  # fmt: skip
+           "r": float(rewards.mean()), "continuing": float(continuing.mean()),
+           "lis dist end": float(distances_end.mean()) if ending.any() else float("nan")}  # fmt: skip
     for i, name in enumerate(layout.agents):  # type: ignore[union-attr]
         short = "spk" if name.startswith("speaker") else "lis" if name.startswith("listener") else name
         out[f"Q {short}"] = float(q[i].mean())
         out[f"TD {short}"] = float(td[i].mean())
         out[f"|TD| {short}"] = float(np.abs(td[i]).mean())
         out[f"gap {short}"] = float(gap[i])
+        out[f"end {short}"] = float(next_q[i][ending].mean()) if ending.any() else float("nan")
         out[f"gap lis {short}"] = float(gap_listener[i])
     return out
 
@@ -286,9 +295,9 @@ def main() -> None:
         if source.replay_buffer.full:  # type: ignore[union-attr]
             raise SystemExit(f"{args.buffer_of}: its replay buffer has wrapped around; earlier models' rows are gone")
     print()
-    print("| model | run | transitions | r | Q spk (s,a) | TD spk | abs TD spk | gap spk | gap(lis) spk | Q lis (s,a) | TD lis "
-          "| abs TD lis | gap lis | gap(lis) lis | lis dist | lis speed |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| model | run | transitions | r | Q spk (s,a) | TD spk | abs TD spk | gap spk | gap(lis) spk | end spk | Q lis (s,a) "
+          "| TD lis | abs TD lis | gap lis | gap(lis) lis | end lis | lis dist | lis speed | lis dist end |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(args.models, key=step_of):
         if source is None:
             model, _ = load_checkpoint(path, allow_other_version=True)
@@ -307,8 +316,8 @@ def main() -> None:
                 cells = [os.path.basename(os.path.normpath(path)), label, window, f"{d['r']:+.2f}"]
                 for short in ("spk", "lis"):
                     cells += [f"{d[f'Q {short}']:.1f}", f"{d[f'TD {short}']:+.2f}", f"{d[f'|TD| {short}']:.2f}",
-                              f"{d[f'gap {short}']:+.2f}", f"{d[f'gap lis {short}']:+.2f}"]  # fmt: skip
-                cells += [f"{d['lis dist']:.2f}", f"{d['lis speed']:.2f}"]
+                              f"{d[f'gap {short}']:+.2f}", f"{d[f'gap lis {short}']:+.2f}", f"{d[f'end {short}']:.1f}"]  # fmt: skip
+                cells += [f"{d['lis dist']:.2f}", f"{d['lis speed']:.2f}", f"{d['lis dist end']:.2f}"]
                 print("| " + " | ".join(cells) + " |", flush=True)
 
 
