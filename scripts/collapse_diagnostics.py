@@ -29,6 +29,12 @@ Nothing is written: the checkpoint and the runs' files stay as they are.
         --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json \\
         --continue-steps 5000 --preactivation-reg 0 1e-3
 
+**Who says what.** With ``--per-goal``, a third table splits the same noise-free episodes by goal landmark: the
+speaker's message at the first step (its mean, and its largest spread within the goal: the speaker sees only the
+goal's colour, so a deterministic speaker sends one message per goal), the any-step and final-step success for that
+goal, and where the listener is at the episode's last step: within 0.15 of landmark 0, 1 or 2, or of none. A
+speaker that sends one message for two goals, or a listener that goes to one landmark whatever it hears, shows here.
+
 **The critics on their own data.** With ``--on-buffer``, each checkpoint folder's replay buffer is read too, and for
 each run, over the whole buffer (``all``) and over its newest ``--recent`` transitions (``recent``), a second table
 gives, on ``--samples`` transitions drawn from the run's own column (seed ``--seed``):
@@ -77,6 +83,7 @@ from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.zoo.experiment import load_checkpoint, restore_global_rngs
 
 ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
+SUCCESS_RADIUS = 0.15  # the task's: the listener within 0.15 of the goal
 
 
 def run_labels(experiment: str | None, n_runs: int) -> list[tuple[str, float, bool]]:
@@ -139,6 +146,50 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     out["Q out"] = float(((q < bounds[0] - 1.0) | (q > bounds[1] + 1.0)).float().mean())
     out["Q range"] = bounds  # type: ignore[assignment]
     return out
+
+
+def per_goal(model: MADDPG, k: int, episodes: int, seed: int) -> list[dict[str, Any]]:
+    """
+    What run ``k``'s speaker says for each goal and where its listener goes: ``episodes`` noise-free episodes, grouped
+    by goal landmark (see the module docstring).
+    """
+    solo = model.get_run(k)
+    layout = solo.agent_layout
+    speaker = next(i for i, name in enumerate(layout.agents) if name.startswith("speaker"))
+    listener = next(i for i, name in enumerate(layout.agents) if name.startswith("listener"))
+    env = make_task_vec_env(ENV_ID, episodes, {"reward": "sparse"})
+    env.seed(seed)
+    obs = env.reset()
+    goals = obs[:, layout.obs_slices[speaker]].argmax(axis=1)  # the goal's colour: its largest component is its index
+    reached = np.zeros(episodes, dtype=bool)
+    messages = None
+    for _ in range(10_000):
+        with th.no_grad():
+            action = solo.policy.unscale_action(solo.actor(th.as_tensor(obs, dtype=th.float32)).numpy())
+        if messages is None:
+            messages = action[:, layout.action_slices[speaker]]  # the message of the first step
+        obs, _, dones, infos = env.step(action)
+        success = np.array([info["agent_infos"][layout.agents[listener]]["success"] for info in infos])
+        reached |= success
+        if dones.all():
+            break
+    else:
+        raise RuntimeError("the episodes did not end")
+    final_obs = np.stack([info["terminal_observation"] for info in infos])[:, layout.obs_slices[listener]]
+    distances = np.linalg.norm(final_obs[:, 2:8].reshape(-1, 3, 2), axis=-1)  # velocity, then 3 landmarks relative
+    ends = np.where(distances.min(axis=1) <= SUCCESS_RADIUS, distances.argmin(axis=1), 3)  # 3: at none
+    rows = []
+    for goal in range(3):
+        chosen = goals == goal
+        rows.append({
+            "goal": goal, "episodes": int(chosen.sum()),
+            "any": float(reached[chosen].mean()) if chosen.any() else float("nan"),
+            "final": float((ends[chosen] == goal).mean()) if chosen.any() else float("nan"),
+            "message": messages[chosen].mean(axis=0) if chosen.any() else np.full(messages.shape[1], np.nan),  # type: ignore[union-attr]
+            "message sd": float(messages[chosen].std(axis=0).max()) if chosen.any() else float("nan"),  # type: ignore[union-attr]
+            "ends": [float((ends[chosen] == j).mean()) if chosen.any() else float("nan") for j in range(4)],
+        })  # fmt: skip
+    return rows
 
 
 def buffer_rows(model: MADDPG, newest: int | None = None) -> np.ndarray:
@@ -243,6 +294,8 @@ def main() -> None:
                         help="train checkpoint folders on for this many steps per run, then measure again")
     parser.add_argument("--preactivation-reg", type=float, nargs="+", default=[0.0],
                         help="preactivation_reg values for --continue-steps (one continuation each)")  # fmt: skip
+    parser.add_argument("--per-goal", action="store_true",
+                        help="also print, per goal landmark, the speaker's message and where the listener ends")  # fmt: skip
     parser.add_argument("--on-buffer", action="store_true",
                         help="also measure the critics on checkpoint folders' replay buffers (second table)")  # fmt: skip
     parser.add_argument("--buffer-of", default=None,
@@ -287,6 +340,19 @@ def main() -> None:
         rows(name, MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu"))
         for reg in args.preactivation_reg if args.continue_steps else []:
             rows(f"{name} +{args.continue_steps} (reg {reg:g})", continue_from_checkpoint(path, args.continue_steps, reg))
+    if args.per_goal:
+        print()
+        print("| model | run | goal | episodes | any | final | message (first step) | message sd | listener ends at landmark 0 / 1 / 2 / none |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for path in sorted(args.models, key=step_of):
+            name = os.path.basename(os.path.normpath(path))
+            model = MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu")
+            for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model.n_runs)):
+                for row in per_goal(model, k, args.episodes, args.seed):
+                    message = ", ".join(f"{v:.2f}" for v in row["message"])
+                    ends = " / ".join(f"{v:.2f}" for v in row["ends"])
+                    print(f"| {name} | {label} | {row['goal']} | {row['episodes']} | {row['any']:.2f} | {row['final']:.2f} | "
+                          f"({message}) | {row['message sd']:.2f} | {ends} |", flush=True)  # fmt: skip
     if not args.on_buffer:
         return
     source = None

@@ -247,6 +247,47 @@ def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
     assert saturated["sat lis"] > 0.9 and saturated["sat spk"] > 0.9 and saturated["pre lis"] > 10.0
 
 
+def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
+    from sb3_macb import MADDPG
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    diagnostics = load_script("collapse_diagnostics")
+    model = MADDPG("MlpPolicy", make_task_vec_env(diagnostics.ENV_ID, 2), n_runs=2, run_seeds=[0, 1], learning_starts=40,
+                   batch_size=8, policy_kwargs=dict(net_arch=[16]))  # fmt: skip
+    model.learn(2 * 200)
+    for k in (0, 1):
+        rows = diagnostics.per_goal(model, k, episodes=60, seed=5)
+        whole = diagnostics.diagnose(model, k, 0.0, False, episodes=60, seed=5)  # the same 60 episodes
+        assert [row["goal"] for row in rows] == [0, 1, 2] and sum(row["episodes"] for row in rows) == 60
+        # the landmark the listener ends at (from the last observation) agrees with the env's own success flags
+        assert sum(row["final"] * row["episodes"] for row in rows) / 60 == pytest.approx(whole["final"])
+        assert sum(row["any"] * row["episodes"] for row in rows) / 60 == pytest.approx(whole["any"])
+        for row in rows:
+            assert sum(row["ends"]) == pytest.approx(1.0) and row["ends"][row["goal"]] == pytest.approx(row["final"])
+            assert row["message sd"] < 1e-6  # the speaker sees only the goal's colour: one message per goal
+            assert np.all((row["message"] >= 0) & (row["message"] <= 1))  # messages are in [0, 1]
+
+    # a scripted pair whose listener goes to landmark 0 when the goal is 2 (as a speaker that conflates them would)
+    import types
+
+    import torch as th
+
+    from sb3_macb.envs.reference_policies import GoalListener
+
+    class Conflating(GoalListener):
+        def _choose(self, obs, starting):
+            super()._choose(obs, starting)
+            self.targets = np.where(self.targets == 2, 0, self.targets)
+
+    listener = Conflating()
+    scripted = types.SimpleNamespace(agent_layout=model.agent_layout, policy=types.SimpleNamespace(unscale_action=lambda a: a),
+                                     actor=lambda obs: th.as_tensor(listener.predict(obs.numpy())[0]))  # fmt: skip
+    model.get_run = lambda k: scripted
+    rows = diagnostics.per_goal(model, 0, episodes=90, seed=6)
+    assert rows[0]["final"] > 0.9 and rows[1]["final"] > 0.9 and rows[2]["final"] == 0.0
+    assert rows[2]["ends"][0] > 0.9 and rows[0]["ends"][0] == rows[0]["final"] and rows[1]["ends"][1] == rows[1]["final"]
+
+
 def test_collapse_diagnostics_continues_a_checkpoint_from_its_exact_state(tmp_path):
     import pickle
     import random
