@@ -284,6 +284,15 @@ def continue_from_checkpoint(folder: str, steps: int, preactivation_reg: float) 
     return model
 
 
+def display_name(path: str) -> str:
+    """A model's name in the tables: its file or folder name, or ``<variant>/<seed_s>`` for a run's final ``model.zip``."""
+    path = os.path.normpath(path)
+    if os.path.basename(path) == "model.zip":  # a finished run's model (or a checkpoint's): name it by its folders
+        parts = os.path.dirname(path).split(os.sep)
+        return "/".join(parts[-2:])
+    return os.path.basename(path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("models", nargs="+", help="model.zip files of packs (e.g. archived checkpoints)")
@@ -336,7 +345,7 @@ def main() -> None:
     print("| model | run | any | final | sat spk | sat lis | pre lis | Q spk | Q lis | Q range | Q out |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(args.models, key=step_of):
-        name = os.path.basename(os.path.normpath(path))
+        name = display_name(path)
         rows(name, MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu"))
         for reg in args.preactivation_reg if args.continue_steps else []:
             rows(f"{name} +{args.continue_steps} (reg {reg:g})", continue_from_checkpoint(path, args.continue_steps, reg))
@@ -345,7 +354,7 @@ def main() -> None:
         print("| model | run | goal | episodes | any | final | message (first step) | message sd | listener ends at landmark 0 / 1 / 2 / none |")
         print("|---|---|---|---|---|---|---|---|---|")
         for path in sorted(args.models, key=step_of):
-            name = os.path.basename(os.path.normpath(path))
+            name = display_name(path)
             model = MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu")
             for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model.n_runs)):
                 for row in per_goal(model, k, args.episodes, args.seed):
@@ -379,7 +388,7 @@ def main() -> None:
         for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model.n_runs)):
             for window, candidates in ((f"all {len(everything)}", everything), (f"newest {len(newest)}", newest)):
                 d = on_buffer(model, k, candidates, args.samples, args.seed, buffer)
-                cells = [os.path.basename(os.path.normpath(path)), label, window, f"{d['r']:+.2f}"]
+                cells = [display_name(path), label, window, f"{d['r']:+.2f}"]
                 for short in ("spk", "lis"):
                     cells += [f"{d[f'Q {short}']:.1f}", f"{d[f'TD {short}']:+.2f}", f"{d[f'|TD| {short}']:.2f}",
                               f"{d[f'gap {short}']:+.2f}", f"{d[f'gap lis {short}']:+.2f}", f"{d[f'end {short}']:.1f}"]  # fmt: skip

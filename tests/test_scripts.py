@@ -252,6 +252,9 @@ def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
     from sb3_macb.envs.vec_tasks import make_task_vec_env
 
     diagnostics = load_script("collapse_diagnostics")
+    assert diagnostics.display_name("results/x/macb_joint/seed_1/model.zip") == "macb_joint/seed_1"
+    assert diagnostics.display_name("logs/archive/seed_1/step_100000.zip") == "step_100000.zip"
+    assert diagnostics.display_name("logs/x/checkpoint/step_300000/") == "step_300000"
     model = MADDPG("MlpPolicy", make_task_vec_env(diagnostics.ENV_ID, 2), n_runs=2, run_seeds=[0, 1], learning_starts=40,
                    batch_size=8, policy_kwargs=dict(net_arch=[16]))  # fmt: skip
     model.learn(2 * 200)
