@@ -256,7 +256,8 @@ def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed:
     ending = buffer.timeouts[rows, column] == 1  # type: ignore[union-attr]
     listener_end = buffer.next_observations[rows[ending], column, layout.obs_slices[index]]  # type: ignore[union-attr]
     distances_end = np.linalg.norm(listener_end[:, 2:8].reshape(-1, 3, 2), axis=-1).min(axis=-1)
-    out = {"lis dist": float(distances.min(axis=-1).mean()), "lis speed": float(np.linalg.norm(listener[:, :2], axis=-1).mean()),
+    out = {"lis dist": float(distances.min(axis=-1).mean()),
+           "lis speed": float(np.linalg.norm(listener[:, :2], axis=-1).mean()),
            "r": float(rewards.mean()), "continuing": float(continuing.mean()),
            "lis dist end": float(distances_end.mean()) if ending.any() else float("nan")}  # fmt: skip
     for i, name in enumerate(layout.agents):  # type: ignore[union-attr]
@@ -351,7 +352,8 @@ def main() -> None:
             rows(f"{name} +{args.continue_steps} (reg {reg:g})", continue_from_checkpoint(path, args.continue_steps, reg))
     if args.per_goal:
         print()
-        print("| model | run | goal | episodes | any | final | message (first step) | message sd | listener ends at landmark 0 / 1 / 2 / none |")
+        print("| model | run | goal | episodes | any | final | message (first step) | message sd "
+              "| listener ends at landmark 0 / 1 / 2 / none |")
         print("|---|---|---|---|---|---|---|---|---|")
         for path in sorted(args.models, key=step_of):
             name = display_name(path)
@@ -370,7 +372,8 @@ def main() -> None:
         if source.replay_buffer.full:  # type: ignore[union-attr]
             raise SystemExit(f"{args.buffer_of}: its replay buffer has wrapped around; earlier models' rows are gone")
     print()
-    print("| model | run | transitions | r | Q spk (s,a) | TD spk | abs TD spk | gap spk | gap(lis) spk | end spk | Q lis (s,a) "
+    print("| model | run | transitions | r | Q spk (s,a) | TD spk | abs TD spk | gap spk | gap(lis) spk | end spk "
+          "| Q lis (s,a) "
           "| TD lis | abs TD lis | gap lis | gap(lis) lis | end lis | lis dist | lis speed | lis dist end |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(args.models, key=step_of):
@@ -391,7 +394,8 @@ def main() -> None:
                 cells = [display_name(path), label, window, f"{d['r']:+.2f}"]
                 for short in ("spk", "lis"):
                     cells += [f"{d[f'Q {short}']:.1f}", f"{d[f'TD {short}']:+.2f}", f"{d[f'|TD| {short}']:.2f}",
-                              f"{d[f'gap {short}']:+.2f}", f"{d[f'gap lis {short}']:+.2f}", f"{d[f'end {short}']:.1f}"]  # fmt: skip
+                              f"{d[f'gap {short}']:+.2f}", f"{d[f'gap lis {short}']:+.2f}",
+                              f"{d[f'end {short}']:.1f}"]  # fmt: skip
                 cells += [f"{d['lis dist']:.2f}", f"{d['lis speed']:.2f}", f"{d['lis dist end']:.2f}"]
                 print("| " + " | ".join(cells) + " |", flush=True)
 

@@ -8,7 +8,8 @@ each run's evaluations as ``results/<Task>-<reward>[-<suffix>]/<variant>/seed_<s
     python scripts/reproduce.py --task comm-sparse --variants maddpg macb_joint macb_local macb_constant macb_k32 \\
         --seeds 0 1 2 3 4 --fast --suffix 4e4 --pack 5 -j 2
 
-Variants are those of ``zoo/hyperparams/maddpg.yml``; ``--fast`` adds the ``fast`` variant (64-64 networks). The
+Variants are those of ``zoo/hyperparams/maddpg.yml``, alone or combined with commas (``maddpg,refcode``: filed as
+``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
 runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
 would be alone). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; running the same command
 again resumes unfinished packs from their checkpoints and skips finished ones, so the script can be stopped at
@@ -70,18 +71,19 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     env_id, folder, env_kwargs = TASKS[args.task]
     root = os.path.join(args.out, folder + (f"-{args.suffix}" if args.suffix else ""))
     runs = []
-    for variant, seed in jobs:
-        variants = [variant] + (["fast"] if args.fast else [])
-        hyperparams = load_hyperparams(env_id, variants=variants)
-        runs.append(RunConfig(seed=seed, folder=os.path.join(root, variant, f"seed_{seed}"), variants=variants, hyperparams=hyperparams))
-    config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
-    experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
-    status = experiment.status()
-    if status == "started":  # stopped before its first checkpoint: nothing to resume, start it over
-        print(f"{work}: stopped before its first checkpoint; starting it again", flush=True)
-        shutil.rmtree(work)
-        status = "new"
     try:
+        for variant, seed in jobs:
+            variants = variant.split(",") + (["fast"] if args.fast else [])  # "maddpg,refcode": applied in order
+            hyperparams = load_hyperparams(env_id, variants=variants)
+            run_folder = os.path.join(root, variant.replace(",", "+"), f"seed_{seed}")
+            runs.append(RunConfig(seed=seed, folder=run_folder, variants=variants, hyperparams=hyperparams))
+        config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
+        experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
+        status = experiment.status()
+        if status == "started":  # stopped before its first checkpoint: nothing to resume, start it over
+            print(f"{work}: stopped before its first checkpoint; starting it again", flush=True)
+            shutil.rmtree(work)
+            status = "new"
         experiment.run(resume=status != "new")
     except ExperimentError as exc:
         return f"{work}: ERROR {exc}"
@@ -111,8 +113,13 @@ def main() -> None:
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
         futures = [pool.submit(run_pack, args, work, jobs, command) for work, jobs in packs]
+        failed = 0
         for future in futures:
-            print(future.result(), flush=True)
+            result = future.result()
+            failed += ": ERROR " in result
+            print(result, flush=True)
+    if failed:
+        sys.exit(f"{failed} of {len(packs)} packs failed (see above)")
 
 
 if __name__ == "__main__":

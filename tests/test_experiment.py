@@ -157,6 +157,32 @@ def test_packs_refuse_runs_that_differ_in_more_than_exploration_and_noise(tmp_pa
     runs = [RunConfig(0, str(tmp_path / "a"), hyperparams=a), RunConfig(1, str(tmp_path / "b"), hyperparams=b)]
     with pytest.raises(ExperimentError, match="differs in \\['policy_kwargs'\\]"):
         ExperimentConfig(COMM, runs, n_timesteps=100)
+    # runs share the pack's env: YAML env kwargs that differ are refused, not merged into both
+    plain = load_hyperparams(COMM, variants=["maddpg", "fast"])
+    refcode = load_hyperparams(COMM, variants=["maddpg", "refcode", "fast"])
+    runs = [RunConfig(0, str(tmp_path / "a"), hyperparams=plain), RunConfig(0, str(tmp_path / "b"), hyperparams=refcode)]
+    with pytest.raises(ExperimentError, match="share one env, but their env_kwargs differ"):
+        ExperimentConfig(COMM, runs, n_timesteps=100)
+
+
+def test_the_refcode_variant_ends_episodes_on_success_and_stores_time_limits_as_terminal(tmp_path):
+    from sb3_macb.zoo.experiment import model_kwargs
+
+    hyperparams = load_hyperparams(COMM, variants=["maddpg", "refcode", "fast"])
+    env_kwargs = hyperparams.pop("env_kwargs")
+    assert env_kwargs == {"terminate_on_success": True}
+    kwargs = model_kwargs({**hyperparams, "learning_starts": 2000})
+    model = MADDPG("MlpPolicy", make_task_vec_env(COMM, 1, env_kwargs), seed=0, **kwargs)
+    model.learn(2000)  # random actions throughout (learning starts at 2,000): some listeners reach the goal
+    buffer = model.replay_buffer
+    ends = np.flatnonzero(buffer.dones[:2000, 0])
+    lengths = np.diff(np.concatenate([[-1], ends]))
+    assert buffer.timeouts[:2000].sum() == 0  # time limits are not marked as such: they are terminal
+    assert lengths.max() == 20 and lengths.min() < 20  # time-limit ends, and episodes ended early by a success
+    plain_kwargs = model_kwargs({**load_hyperparams(COMM, variants=["maddpg", "fast"]), "learning_starts": 400})
+    plain = MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), seed=0, **plain_kwargs)
+    plain.learn(400)
+    assert plain.replay_buffer.timeouts[:400, 0].sum() == 20  # the default: every episode runs 20 steps, bootstrapped
 
 
 SAVE_LOOP = """

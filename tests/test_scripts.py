@@ -365,3 +365,31 @@ def test_collapse_diagnostics_on_buffer_measures_each_critic_against_its_own_tar
     # a buffer that has wrapped around: the newest rows are those just before the write position
     buffer.full, buffer.pos = True, 10
     assert list(diagnostics.buffer_rows(model, 3)) == [7, 8, 9] and len(diagnostics.buffer_rows(model)) == buffer.buffer_size
+
+
+def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tmp_path):
+    import json
+
+    import yaml
+
+    def reproduce(*variants: str, pack: int, work: str = "work", returncode: int = 0) -> str:
+        command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--variants", *variants, "--seeds", "0",
+                   "--fast", "--pack", str(pack), "-n", "60", "--checkpoint-freq", "40", "--work", str(tmp_path / work),
+                   "-o", str(tmp_path / "out")]  # fmt: skip
+        done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=Path(__file__).parent.parent)
+        assert done.returncode == returncode, done.stderr
+        return done.stdout + done.stderr
+
+    out = reproduce("maddpg,refcode", pack=1)
+    assert "done" in out and "ERROR" not in out
+    run = tmp_path / "out" / "CommunicativeNavigation-sparse" / "maddpg+refcode" / "seed_0"
+    config = yaml.safe_load((run / "config.yml").read_text())
+    assert config["variants"] == ["maddpg", "refcode", "fast"] and config["exploration"] is None
+    assert config["replay_buffer_kwargs"] == "dict(handle_timeout_termination=False)"
+    assert (run / "evaluations.npz").exists()
+    experiment = json.loads((tmp_path / "work" / "CommunicativeNavigation-sparse" / "seed_0" / "experiment.json").read_text())
+    assert experiment["config"]["env_kwargs"] == {"reward": "sparse", "terminate_on_success": True}
+    # the two cannot share a pack's env: a clear error for that pack, nothing run
+    out = reproduce("maddpg", "maddpg,refcode", pack=2, work="work2", returncode=1)
+    assert "share one env, but their env_kwargs differ" in out and "1 of 1 packs failed" in out
+    assert not (tmp_path / "out" / "CommunicativeNavigation-sparse" / "maddpg" / "seed_0").exists()

@@ -311,10 +311,18 @@ class ExperimentConfig:
         self.runs = [r if isinstance(r, RunConfig) else RunConfig(**r) for r in self.runs]
         if not self.runs:
             raise ExperimentError("An experiment needs at least one run")
-        for run in self.runs:  # rl_zoo3 lets the YAML entry carry the env's kwargs; the command line's win
-            yaml_env_kwargs = run.hyperparams.pop("env_kwargs", None)
-            if yaml_env_kwargs:
-                self.env_kwargs = {**yaml_env_kwargs, **self.env_kwargs}
+        # rl_zoo3 lets the YAML entry carry the env's kwargs; the command line's win. A pack's runs share one env, so
+        # their YAML env kwargs must agree (merging them would give every run the union, silently)
+        yaml_env_kwargs = [run.hyperparams.pop("env_kwargs", None) or {} for run in self.runs]
+        for run, kwargs in zip(self.runs[1:], yaml_env_kwargs[1:]):
+            if kwargs != yaml_env_kwargs[0]:
+                raise ExperimentError(
+                    f"Runs of one pack share one env, but their env_kwargs differ: seed {self.runs[0].seed} "
+                    f"{self.runs[0].variants} has {yaml_env_kwargs[0]}, seed {run.seed} {run.variants} has {kwargs}; "
+                    f"run them in separate packs"
+                )
+        if yaml_env_kwargs[0]:
+            self.env_kwargs = {**yaml_env_kwargs[0], **self.env_kwargs}
         if self.n_timesteps < 1 or self.eval_freq < 0 or self.eval_episodes < 1:
             raise ExperimentError("n_timesteps and eval_episodes must be >= 1 and eval_freq >= 0")
         for run in self.runs:  # bad settings are refused here, before anything is written or run
