@@ -36,7 +36,7 @@ goal, and where the listener is at the episode's last step: within 0.15 of landm
 speaker that sends one message for two goals, or a listener that goes to one landmark whatever it hears, shows here.
 
 **The critics on their own data.** With ``--on-buffer``, each checkpoint folder's replay buffer is read too, and for
-each run, over the whole buffer (``all``) and over its newest ``--recent`` transitions (``recent``), a second table
+each run, over the whole buffer (``all``) and over its newest ``--recent`` transitions (``newest``), a second table
 gives, on ``--samples`` transitions drawn from the run's own column (seed ``--seed``):
 
 - ``Q spk (s,a)`` / ``Q lis (s,a)``: each critic on the stored state and joint action;
@@ -137,7 +137,7 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     for i, name in enumerate(layout.agents):
         width = layout.action_dims[i]
         part = act_all[:, start : start + width]
-        short = "spk" if name.startswith("speaker") else "lis" if name.startswith("listener") else name
+        short = short_name(name)
         out[f"sat {short}"] = float((part.abs() > 0.99).float().mean())
         if short == "lis":
             out["pre lis"] = float(raw_all[:, start : start + width].abs().mean())
@@ -148,6 +148,21 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     return out
 
 
+def short_name(agent: str) -> str:
+    """``spk`` / ``lis`` for the speaker and the listener (the tables' column names), other agents by name."""
+    return "spk" if agent.startswith("speaker") else "lis" if agent.startswith("listener") else agent
+
+
+def agent_index(layout: Any, prefix: str) -> int:
+    """The index of the first agent whose name starts with ``prefix``."""
+    return next(i for i, name in enumerate(layout.agents) if name.startswith(prefix))
+
+
+def landmark_distances(listener_obs: np.ndarray) -> np.ndarray:
+    """(n, 3) distances to the three landmarks from listener observations (velocity, then the landmarks relative)."""
+    return np.linalg.norm(listener_obs[:, 2:8].reshape(-1, 3, 2), axis=-1)
+
+
 def per_goal(model: MADDPG, k: int, episodes: int, seed: int) -> list[dict[str, Any]]:
     """
     What run ``k``'s speaker says for each goal and where its listener goes: ``episodes`` noise-free episodes, grouped
@@ -155,8 +170,7 @@ def per_goal(model: MADDPG, k: int, episodes: int, seed: int) -> list[dict[str, 
     """
     solo = model.get_run(k)
     layout = solo.agent_layout
-    speaker = next(i for i, name in enumerate(layout.agents) if name.startswith("speaker"))
-    listener = next(i for i, name in enumerate(layout.agents) if name.startswith("listener"))
+    speaker, listener = agent_index(layout, "speaker"), agent_index(layout, "listener")
     env = make_task_vec_env(ENV_ID, episodes, {"reward": "sparse"})
     env.seed(seed)
     obs = env.reset()
@@ -176,7 +190,7 @@ def per_goal(model: MADDPG, k: int, episodes: int, seed: int) -> list[dict[str, 
     else:
         raise RuntimeError("the episodes did not end")
     final_obs = np.stack([info["terminal_observation"] for info in infos])[:, layout.obs_slices[listener]]
-    distances = np.linalg.norm(final_obs[:, 2:8].reshape(-1, 3, 2), axis=-1)  # velocity, then 3 landmarks relative
+    distances = landmark_distances(final_obs)
     ends = np.where(distances.min(axis=1) <= SUCCESS_RADIUS, distances.argmin(axis=1), 3)  # 3: at none
     rows = []
     for goal in range(3):
@@ -231,11 +245,12 @@ def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed:
     next_obs = pack(buffer.next_observations[rows, column])  # type: ignore[union-attr]
     with th.no_grad():
         q = model.critic(obs, actions)[0, k].numpy()  # (n_agents, samples) of the first critic
-        next_q = model.critic_target(next_obs, model.actor_target(next_obs))
+        next_pi = model.actor_target(next_obs)
+        next_q = model.critic_target(next_obs, next_pi)
         next_q = (next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0])[k].numpy()
     td = q - (rewards.T + model.gamma * not_done * next_q)
     layout = model.agent_layout
-    index = next(i for i, name in enumerate(layout.agents) if name.startswith("listener"))  # type: ignore[union-attr]
+    index = agent_index(layout, "listener")
     # the gap at s' between the target policy's actions (what the target bootstraps from) and the actions the run
     # took next (the following row of the same episode), by the target critic: all agents' actions, and the listener's
     following = (rows + 1) % buffer.buffer_size  # type: ignore[union-attr]
@@ -244,24 +259,24 @@ def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed:
     taken = pack(buffer.actions[following[continuing], column])  # type: ignore[union-attr]
     with th.no_grad():
         s2 = next_obs[:, continuing]
-        policy = model.actor_target(s2)
+        policy = next_pi[:, continuing]  # the target policy's actions at those s' (computed above)
         listener_only = taken.clone()
         listener_only[..., layout.action_slices[index]] = policy[..., layout.action_slices[index]]
         q_taken = model.critic_target(s2, taken)[0, k]
         gap = (model.critic_target(s2, policy)[0, k] - q_taken).mean(dim=-1).numpy()
         gap_listener = (model.critic_target(s2, listener_only)[0, k] - q_taken).mean(dim=-1).numpy()
     listener = buffer.observations[rows, column, layout.obs_slices[index]]  # type: ignore[union-attr]
-    distances = np.linalg.norm(listener[:, 2:8].reshape(-1, 3, 2), axis=-1)  # velocity, then 3 landmarks relative
+    distances = landmark_distances(listener)
     # where episodes end (time limits): the states the target bootstraps from last, and how far the listener is there
     ending = buffer.timeouts[rows, column] == 1  # type: ignore[union-attr]
     listener_end = buffer.next_observations[rows[ending], column, layout.obs_slices[index]]  # type: ignore[union-attr]
-    distances_end = np.linalg.norm(listener_end[:, 2:8].reshape(-1, 3, 2), axis=-1).min(axis=-1)
+    distances_end = landmark_distances(listener_end).min(axis=-1)
     out = {"lis dist": float(distances.min(axis=-1).mean()),
            "lis speed": float(np.linalg.norm(listener[:, :2], axis=-1).mean()),
            "r": float(rewards.mean()), "continuing": float(continuing.mean()),
            "lis dist end": float(distances_end.mean()) if ending.any() else float("nan")}  # fmt: skip
     for i, name in enumerate(layout.agents):  # type: ignore[union-attr]
-        short = "spk" if name.startswith("speaker") else "lis" if name.startswith("listener") else name
+        short = short_name(name)
         out[f"Q {short}"] = float(q[i].mean())
         out[f"TD {short}"] = float(td[i].mean())
         out[f"|TD| {short}"] = float(np.abs(td[i]).mean())
