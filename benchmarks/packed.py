@@ -9,6 +9,7 @@ fixed number of steps per run is timed. Solo and pack rounds are interleaved; th
 
     python benchmarks/packed.py                      # pack of 8 at 64-64, pack of 3 at 400-300, 3 rounds
     python benchmarks/packed.py --rounds 5 --steps-64 3000
+    python benchmarks/packed.py --device cuda --pack-400 12   # the models on a GPU (env and evaluation stay on CPU)
 
 ratio = (run-steps per second of the pack) / (steps per second of one solo run). The last line reads
 ``packed: ratio_64=<x> ratio_400=<y>``. Everything runs on one thread. The header says what explains the
@@ -33,7 +34,7 @@ from sb3_macb.envs.vec_tasks import make_task_vec_env
 ENV = "sb3_macb/CommunicativeNavigation-v0"
 
 
-def build(n_runs: int, net: list[int], seed: int = 0) -> tuple[MADDPG, MultiAgentEvalCallback]:
+def build(n_runs: int, net: list[int], seed: int = 0, device: str = "cpu") -> tuple[MADDPG, MultiAgentEvalCallback]:
     seeds = [seed + k for k in range(n_runs)]
     model = MADDPG(
         "MlpPolicy",
@@ -46,6 +47,7 @@ def build(n_runs: int, net: list[int], seed: int = 0) -> tuple[MADDPG, MultiAgen
         batch_size=100,
         learning_starts=100 * n_runs,
         policy_kwargs=dict(net_arch=net),
+        device=device,
     )
     callback = MultiAgentEvalCallback(
         make_eval_vec_env(ENV, 10, seeds, {"reward": "sparse"}), n_eval_episodes=10, eval_freq=20, verbose=0, warn=False
@@ -53,9 +55,9 @@ def build(n_runs: int, net: list[int], seed: int = 0) -> tuple[MADDPG, MultiAgen
     return model, callback
 
 
-def run_steps_per_second(n_runs: int, net: list[int], steps: int) -> float:
+def run_steps_per_second(n_runs: int, net: list[int], steps: int, device: str = "cpu") -> float:
     """Run-steps per second (summed over the pack's runs), after warm-up."""
-    model, callback = build(n_runs, net)
+    model, callback = build(n_runs, net, device=device)
     model.learn(200 * n_runs, callback=callback)  # learning starts at 100; 100 updates of warm-up
     start = time.perf_counter()
     model.learn(steps * n_runs, callback=callback, reset_num_timesteps=False)
@@ -89,9 +91,12 @@ def main() -> None:
     parser.add_argument("--pack-400", type=int, default=3)
     parser.add_argument("--steps-64", type=int, default=2000, help="timed steps per run at 64-64")
     parser.add_argument("--steps-400", type=int, default=400, help="timed steps per run at 400-300")
+    parser.add_argument("--device", default="cpu", help="torch device of the models (cpu, cuda, ...)")
     args = parser.parse_args()
     th.set_num_threads(1)
     print(f"sb3_macb {sb3_macb.__version__}, torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
+    if args.device != "cpu":
+        print(f"models on {args.device}: {th.cuda.get_device_name(th.device(args.device))}")
     print("GEMM 100x400 @ 400x300, GFLOP/s: " + ", ".join(f"{k} {v:.0f}" for k, v in gemm_rates().items()))
     print("paths: 400-300 layers per group through oneDNN" if onednn_available() else "paths: no oneDNN (bmm everywhere)",
           "| 64-64 layers batched over groups (baddbmm)")  # fmt: skip
@@ -100,7 +105,7 @@ def main() -> None:
     for round_ in range(args.rounds):
         for name, net, pack, steps in configs:
             for n_runs in (1, pack):
-                rate = run_steps_per_second(n_runs, net, steps)
+                rate = run_steps_per_second(n_runs, net, steps, args.device)
                 results.setdefault((name, n_runs), []).append(rate)
                 print(f"round {round_ + 1}: {name}, {n_runs} run(s): {rate:.0f} run-steps/s", flush=True)
     print("\n| networks | runs in the process | run-steps/s (median) | per run | ratio to solo |")

@@ -8,6 +8,7 @@ agent). Rounds are interleaved so that machine drift hits every configuration al
     python benchmarks/throughput.py                  # one thread, 400-300 and 64-64, 4-agent task, MACB
     python benchmarks/throughput.py --threads 2 --steps 2000 --rounds 5
     python benchmarks/throughput.py --quick --bf16   # adds MADDPG with policy_kwargs=dict(precision="bf16")
+    python benchmarks/throughput.py --quick --device cuda   # every configuration on the GPU
 """
 
 import argparse
@@ -28,9 +29,9 @@ from sb3_macb import MACB, MADDPG
 
 
 def make_model(
-    kind: str, net: list[int], batch_size: int, seed: int, precision: str = "fp32", **kwargs: Any
+    kind: str, net: list[int], batch_size: int, seed: int, precision: str = "fp32", device: str = "cpu", **kwargs: Any
 ) -> BaseAlgorithm:
-    common = dict(batch_size=batch_size, learning_starts=100, seed=seed, device="cpu", policy_kwargs=dict(net_arch=net))
+    common = dict(batch_size=batch_size, learning_starts=100, seed=seed, device=device, policy_kwargs=dict(net_arch=net))
     if precision != "fp32":
         common["policy_kwargs"]["precision"] = precision
     if kind == "ddpg":
@@ -69,42 +70,49 @@ def main() -> None:
                         "simple_spread N=3 and N=6 with and without shared actors and critics (64-64)")  # fmt: skip
     parser.add_argument("--bf16", action="store_true",
                         help="add MADDPG with its products in bfloat16 (policy_kwargs=dict(precision='bf16'))")  # fmt: skip
+    parser.add_argument("--device", default="cpu", help="torch device of every model (cpu, cuda, cuda:1, ...)")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
+    device = args.device
+
+    def new_model(kind: str, net: list[int], precision: str = "fp32", **kwargs: Any) -> BaseAlgorithm:
+        return make_model(kind, net, args.batch_size, 0, precision, device=device, **kwargs)
 
     big, small = [400, 300], [64, 64]
     configs: dict[str, Callable[[], BaseAlgorithm]] = {
-        "SB3 DDPG, Pendulum-v1, 400-300": lambda: make_model("ddpg", big, args.batch_size, 0),
-        "MADDPG, speaker-listener (2 agents), 400-300": lambda: make_model("maddpg", big, args.batch_size, 0),
-        "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: make_model(
-            "maddpg", big, args.batch_size, 0, exploration=MACB(beta=0.8, k=512)
+        "SB3 DDPG, Pendulum-v1, 400-300": lambda: new_model("ddpg", big),
+        "MADDPG, speaker-listener (2 agents), 400-300": lambda: new_model("maddpg", big),
+        "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: new_model(
+            "maddpg", big, exploration=MACB(beta=0.8, k=512)
         ),
     }
     if not args.quick:
         configs.update(
             {
-                "SB3 DDPG, Pendulum-v1, 64-64": lambda: make_model("ddpg", small, args.batch_size, 0),
-                "MADDPG, speaker-listener, 64-64": lambda: make_model("maddpg", small, args.batch_size, 0),
-                "MADDPG, simple_spread N=4 (4 agents), 400-300": lambda: make_model("maddpg-4", big, args.batch_size, 0),
-                "MADDPG, simple_spread N=4 (4 agents), 64-64": lambda: make_model("maddpg-4", small, args.batch_size, 0),
+                "SB3 DDPG, Pendulum-v1, 64-64": lambda: new_model("ddpg", small),
+                "MADDPG, speaker-listener, 64-64": lambda: new_model("maddpg", small),
+                "MADDPG, simple_spread N=4 (4 agents), 400-300": lambda: new_model("maddpg-4", big),
+                "MADDPG, simple_spread N=4 (4 agents), 64-64": lambda: new_model("maddpg-4", small),
             }
         )
     if args.bf16:
-        configs["MADDPG bf16, speaker-listener, 400-300"] = lambda: make_model("maddpg", big, args.batch_size, 0, "bf16")
+        configs["MADDPG bf16, speaker-listener, 400-300"] = lambda: new_model("maddpg", big, "bf16")
         if not args.quick:
-            configs["MADDPG bf16, speaker-listener, 64-64"] = lambda: make_model("maddpg", small, args.batch_size, 0, "bf16")
+            configs["MADDPG bf16, speaker-listener, 64-64"] = lambda: new_model("maddpg", small, "bf16")
     if args.features:
         configs = {
-            "MADDPG, speaker-listener, continuous, 64-64": lambda: make_model("maddpg", small, args.batch_size, 0),
-            "MADDPG, speaker-listener, discrete (Gumbel-softmax), 64-64": lambda: make_model(
-                "maddpg-discrete", small, args.batch_size, 0
+            "MADDPG, speaker-listener, continuous, 64-64": lambda: new_model("maddpg", small),
+            "MADDPG, speaker-listener, discrete (Gumbel-softmax), 64-64": lambda: new_model(
+                "maddpg-discrete", small
             ),
         }
         for n in (3, 6):
             for share in (False, True):
                 name = f"MADDPG, simple_spread N={n}, 64-64, {'shared actors and critics' if share else 'one network per agent'}"
                 kwargs = dict(share_parameters="all", share_critics=True) if share else {}
-                configs[name] = lambda n=n, kwargs=kwargs: make_model(f"spread-{n}", small, args.batch_size, 0, **kwargs)
+                configs[name] = lambda n=n, kwargs=kwargs: new_model(
+                    f"spread-{n}", small, **kwargs
+                )
     results: dict[str, list[float]] = {name: [] for name in configs}
     for _ in range(args.rounds):
         for name, build in configs.items():
@@ -113,6 +121,8 @@ def main() -> None:
     med = {name: statistics.median(values) for name, values in results.items()}
     print(f"\nthreads={args.threads} batch={args.batch_size} steps={args.steps} rounds={args.rounds} torch={th.__version__}")
     print(f"backend: {describe_backend()}")
+    if device != "cpu":
+        print(f"device: {device} ({th.cuda.get_device_name(th.device(device)) if th.cuda.is_available() else 'no CUDA'})")
     print("| configuration | env steps/s (median) | min | max |")
     print("|---|---|---|---|")
     for name, values in results.items():

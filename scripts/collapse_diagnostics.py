@@ -114,13 +114,13 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     final = np.zeros(episodes, dtype=bool)
     for _ in range(10_000):
         with th.no_grad():
-            obs_t = th.as_tensor(obs, dtype=th.float32)
+            obs_t = th.as_tensor(obs, dtype=th.float32, device=solo.device)
             raw = solo.actor.raw(obs_t)  # one pass: the squashed action and the env's action follow from it
             action = solo.actor.squash(raw)
         observations.append(obs_t)
         actions.append(action)
         raws.append(raw)
-        obs, _, dones, infos = env.step(solo.policy.unscale_action(action.numpy()))  # as predict(deterministic=True)
+        obs, _, dones, infos = env.step(solo.policy.unscale_action(action.cpu().numpy()))  # as predict(deterministic=True)
         success = np.array([info["agent_infos"]["listener_0"]["success"] for info in infos])
         reached |= success
         if dones.all():
@@ -179,7 +179,8 @@ def per_goal(model: MADDPG, k: int, episodes: int, seed: int) -> list[dict[str, 
     messages = None
     for _ in range(10_000):
         with th.no_grad():
-            action = solo.policy.unscale_action(solo.actor(th.as_tensor(obs, dtype=th.float32)).numpy())
+            obs_t = th.as_tensor(obs, dtype=th.float32, device=solo.device)
+            action = solo.policy.unscale_action(solo.actor(obs_t).cpu().numpy())
         if messages is None:
             messages = action[:, layout.action_slices[speaker]]  # the message of the first step
         obs, _, dones, infos = env.step(action)
@@ -236,18 +237,18 @@ def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed:
 
     def pack(array: np.ndarray) -> th.Tensor:
         # the pack's networks take (n_runs, batch, dim): run k's rows in its slot, zeros (ignored) elsewhere
-        out = th.zeros((model.n_runs, *array.shape), dtype=th.float32)
-        out[k] = th.as_tensor(array, dtype=th.float32)
+        out = th.zeros((model.n_runs, *array.shape), dtype=th.float32, device=model.device)
+        out[k] = th.as_tensor(array, dtype=th.float32, device=model.device)
         return out
 
     obs = pack(buffer.observations[rows, column])  # type: ignore[union-attr]
     actions = pack(buffer.actions[rows, column])  # type: ignore[union-attr]
     next_obs = pack(buffer.next_observations[rows, column])  # type: ignore[union-attr]
     with th.no_grad():
-        q = model.critic(obs, actions)[0, k].numpy()  # (n_agents, samples) of the first critic
+        q = model.critic(obs, actions)[0, k].cpu().numpy()  # (n_agents, samples) of the first critic
         next_pi = model.actor_target(next_obs)
         next_q = model.critic_target(next_obs, next_pi)
-        next_q = (next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0])[k].numpy()
+        next_q = (next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0])[k].cpu().numpy()
     td = q - (rewards.T + model.gamma * not_done * next_q)
     layout = model.agent_layout
     index = agent_index(layout, "listener")
@@ -257,14 +258,15 @@ def on_buffer(model: MADDPG, k: int, candidates: np.ndarray, samples: int, seed:
     continuing = np.isin(following, candidates) & (buffer.dones[rows, column] == 0) & np.all(  # type: ignore[union-attr]
         buffer.observations[following, column] == buffer.next_observations[rows, column], axis=-1)  # type: ignore[union-attr]
     taken = pack(buffer.actions[following[continuing], column])  # type: ignore[union-attr]
+    continuing_t = th.as_tensor(continuing, device=model.device)
     with th.no_grad():
-        s2 = next_obs[:, continuing]
-        policy = next_pi[:, continuing]  # the target policy's actions at those s' (computed above)
+        s2 = next_obs[:, continuing_t]
+        policy = next_pi[:, continuing_t]  # the target policy's actions at those s' (computed above)
         listener_only = taken.clone()
         listener_only[..., layout.action_slices[index]] = policy[..., layout.action_slices[index]]
         q_taken = model.critic_target(s2, taken)[0, k]
-        gap = (model.critic_target(s2, policy)[0, k] - q_taken).mean(dim=-1).numpy()
-        gap_listener = (model.critic_target(s2, listener_only)[0, k] - q_taken).mean(dim=-1).numpy()
+        gap = (model.critic_target(s2, policy)[0, k] - q_taken).mean(dim=-1).cpu().numpy()
+        gap_listener = (model.critic_target(s2, listener_only)[0, k] - q_taken).mean(dim=-1).cpu().numpy()
     listener = buffer.observations[rows, column, layout.obs_slices[index]]  # type: ignore[union-attr]
     distances = landmark_distances(listener)
     # where episodes end (time limits): the states the target bootstraps from last, and how far the listener is there
@@ -291,7 +293,7 @@ def continue_from_checkpoint(folder: str, steps: int, preactivation_reg: float) 
     The pack of checkpoint ``folder`` trained ``steps`` more steps per run with ``preactivation_reg``, from the
     checkpoint's exact state (as ``Experiment`` resumes it, without its evaluation callback: nothing is written).
     """
-    model, state = load_checkpoint(folder, allow_other_version=True)  # (a checkpoint this machine's runs wrote)
+    model, state = load_checkpoint(folder, allow_other_version=True, device="cpu")  # (a checkpoint this machine's runs wrote)
     if state.get("sb3_macb") != sb3_macb.__version__:
         print(f"note: {folder} was written by sb3_macb {state.get('sb3_macb')}, continued with {sb3_macb.__version__}")
     restore_global_rngs(state)
@@ -383,7 +385,7 @@ def main() -> None:
         return
     source = None
     if args.buffer_of:  # earlier models of the same pack, on the transitions they had collected by their step
-        source, _ = load_checkpoint(args.buffer_of, allow_other_version=True)
+        source, _ = load_checkpoint(args.buffer_of, allow_other_version=True, device="cpu")
         if source.replay_buffer.full:  # type: ignore[union-attr]
             raise SystemExit(f"{args.buffer_of}: its replay buffer has wrapped around; earlier models' rows are gone")
     print()
@@ -393,7 +395,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for path in sorted(args.models, key=step_of):
         if source is None:
-            model, _ = load_checkpoint(path, allow_other_version=True)
+            model, _ = load_checkpoint(path, allow_other_version=True, device="cpu")
             buffer, everything = model.replay_buffer, buffer_rows(model)
         else:
             model = MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu")

@@ -123,7 +123,7 @@ def test_exact_bonus_values_and_sampling_changes_nothing():
             [0.5, 0.5],
         ]
     )
-    np.testing.assert_allclose(samples.rewards.numpy(), expected, rtol=1e-6)
+    np.testing.assert_allclose(samples.rewards.cpu().numpy(), expected, rtol=1e-6)
     for _ in range(5):
         buffer.sample(4)
     np.testing.assert_array_equal(buffer.agent_rewards, rewards_before)  # the bonus is never stored
@@ -151,7 +151,7 @@ def test_scopes(scope, n_tables):
     add(model.replay_buffer, [0.1, 0.2, 0.5], [-0.3, 0.2, -0.1], [0.0, 0.0])
     # agent b alone changes: agent a's local code repeats
     add(model.replay_buffer, [0.1, -0.9, 0.5], [0.3, 0.4, 0.4], [0.0, 0.0])
-    rewards = model.replay_buffer._get_samples(np.array([0, 1, 2])).rewards.numpy()
+    rewards = model.replay_buffer._get_samples(np.array([0, 1, 2])).rewards.cpu().numpy()
     if scope == "joint":
         assert exploration.num_codes == 3
         np.testing.assert_allclose(rewards, 1.0)
@@ -189,8 +189,8 @@ def test_bonus_changes_training_targets():
     macb.learn(40)
     # identical warm-up data (learning starts at 10), after which the bonus changes the learned policy
     np.testing.assert_array_equal(plain.replay_buffer.observations[:11], macb.replay_buffer.observations[:11])
-    q_plain = plain.critic(th.zeros(1, 3), th.zeros(1, 3))
-    q_macb = macb.critic(th.zeros(1, 3), th.zeros(1, 3))
+    zeros = th.zeros(1, 3, device=plain.device)
+    q_plain, q_macb = plain.critic(zeros, zeros), macb.critic(zeros, zeros)
     assert (q_macb - q_plain).abs().max() > 1e-3
 
 

@@ -56,9 +56,9 @@ def test_n_envs_2():
 
 def test_policy_shapes_and_independence():
     model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0, centralized_critic=False)
-    critic = model.critic
-    obs = th.randn(5, 3, requires_grad=True)
-    act = th.randn(5, 3, requires_grad=True)
+    critic, device = model.critic, model.device  # tensors on the model's device: CUDA where there is one
+    obs = th.randn(5, 3, device=device, requires_grad=True)
+    act = th.randn(5, 3, device=device, requires_grad=True)
     q = critic(obs, act)
     assert q.shape == (1, 1, 2, 5)  # (critics, runs, agents, batch)
     q[0, 0, 0].sum().backward()  # agent a's independent critic reads only agent a's observation and action
@@ -66,10 +66,10 @@ def test_policy_shapes_and_independence():
     assert obs.grad[:, 0].abs().sum() > 0
 
     model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=SMALL, seed=0)
-    obs = th.randn(5, 3, requires_grad=True)
-    model.critic(obs, th.randn(5, 3))[0, 0, 0].sum().backward()  # centralized: sees everything
+    obs = th.randn(5, 3, device=device, requires_grad=True)
+    model.critic(obs, th.randn(5, 3, device=device))[0, 0, 0].sum().backward()  # centralized: sees everything
     assert (obs.grad.abs().sum(dim=0) > 0).all()
-    obs = th.randn(5, 3, requires_grad=True)
+    obs = th.randn(5, 3, device=device, requires_grad=True)
     model.actor(obs)[:, 0].sum().backward()  # agent a's actor reads only its own observation
     assert obs.grad[:, 1:].abs().sum() == 0
 
@@ -88,7 +88,8 @@ def test_masked_weights_stay_zero_after_training():
 
 @pytest.mark.skipif(not onednn_available(), reason="this PyTorch build has no oneDNN")
 def test_onednn_and_bmm_paths_agree():
-    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=[128, 96]), seed=0)
+    # oneDNN is a CPU path
+    model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=[128, 96]), seed=0, device="cpu")
     obs, act = th.randn(7, 3), th.randn(7, 3)
     results = []
     for use in (True, False):
@@ -135,7 +136,7 @@ def test_bf16_precision_is_close_to_fp32_with_fp32_master_weights(net_arch, shar
         for precision in ("fp32", "bf16")
     }
     obs_dim, act_dim = models["fp32"].observation_space.shape[0], models["fp32"].action_space.shape[0]
-    obs, act = th.randn(64, obs_dim), th.randn(64, act_dim)
+    obs, act = th.randn(64, obs_dim, device=models["fp32"].device), th.randn(64, act_dim, device=models["fp32"].device)
     GroupedMLP.use_onednn = onednn  # False: the batched path, as on other devices
     try:
         exact, low = (_outputs_and_grads(m, obs, act) for m in models.values())
@@ -152,7 +153,7 @@ def test_bf16_precision_is_close_to_fp32_with_fp32_master_weights(net_arch, shar
 def test_bf16_leaves_small_networks_in_fp32():
     models = [MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=[32, 32], precision=p), seed=0)
               for p in ("fp32", "bf16")]  # fmt: skip
-    obs, act = th.randn(64, 3), th.randn(64, 3)
+    obs, act = th.randn(64, 3, device=models[0].device), th.randn(64, 3, device=models[0].device)
     exact, low = (_outputs_and_grads(m, obs, act) for m in models)
     assert all(th.equal(a, b) for a, b in zip(exact, low))
 
@@ -163,7 +164,7 @@ def test_bf16_follows_every_weight_update(tmp_path, n_critics):
     td3 = dict(policy_delay=2, target_policy_noise=0.2) if n_critics == 2 else {}
     model = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96], precision="bf16", n_critics=n_critics),
                    learning_starts=10, batch_size=16, action_noise=noise(), seed=0, **td3)  # fmt: skip
-    obs, act = th.randn(16, 3), th.randn(16, 3)
+    obs, act = th.randn(16, 3, device=model.device), th.randn(16, 3, device=model.device)
     before = model.critic(obs, act)
     model.learn(40)  # fused Adam and foreach target updates change the weights in place
     exact = MADDPG("MlpPolicy", env, policy_kwargs=dict(net_arch=[128, 96], n_critics=n_critics), seed=1)
@@ -361,7 +362,7 @@ def test_discrete_and_mixed_agents_train_predict_save_load(tmp_path):
     obs = env.reset()
     action, _ = model.predict(obs, deterministic=True)
     assert np.isin(action[0, :3], [0.0, 1.0]).all() and action[0, :3].sum() == 1.0
-    logits = model.actor.raw(th.as_tensor(obs))[0, :3]
+    logits = model.actor.raw(th.as_tensor(obs, device=model.device))[0, :3]
     assert action[0, :3].argmax() == int(logits.argmax())  # the deterministic policy is the argmax
     model.save(tmp_path / "m.zip")
     loaded = MADDPG.load(tmp_path / "m.zip", env=env)
@@ -398,7 +399,7 @@ def test_shared_critics_with_td3_settings_are_one_network_per_critic_and_all_lea
     model.learn(60)
     for old, new in zip(before, model.critic.q_net.weights):
         assert not th.equal(old[0], new[0]) and not th.equal(old[1], new[1])  # both critics were trained
-    obs = th.as_tensor(model.env.reset(), dtype=th.float32)
+    obs = th.as_tensor(model.env.reset(), dtype=th.float32, device=model.device)
     q = model.critic(obs, model.actor(obs))
     assert q.shape == (2, 1, 3, 1) and th.isfinite(q).all() and not th.equal(q[0], q[1])
     model.save(tmp_path / "td3_shared.zip")
@@ -415,10 +416,10 @@ def test_parameter_sharing_groups_ids_save_load_and_errors(tmp_path):
     assert model.actor.mu.weights[0].shape[0] == 1 and model.critic.q_net.weights[0].shape[0] == 1
     model.learn(60)
     # agent i's action is the shared network applied to [its own observation, its one-hot id]
-    obs = th.as_tensor(model.env.reset(), dtype=th.float32)
+    obs = th.as_tensor(model.env.reset(), dtype=th.float32, device=model.device)
     layout, mu = model.agent_layout, model.actor.mu
     for i, sl in enumerate(layout.obs_slices):
-        h = th.cat([obs[:, sl], th.nn.functional.one_hot(th.tensor([i]), 3).float()], dim=1)
+        h = th.cat([obs[:, sl], th.nn.functional.one_hot(th.tensor([i], device=model.device), 3).float()], dim=1)
         for k, (w, b) in enumerate(zip(mu.weights, mu.biases)):
             h = h @ w[0].T + b[0]
             h = th.relu(h) if k < len(mu.weights) - 1 else th.tanh(h)
@@ -505,13 +506,13 @@ def test_preactivation_reg_is_each_agents_mean_square_and_pulls_saturated_actors
             MADDPG("MlpPolicy", Rendezvous(), preactivation_reg=bad)
     model = MADDPG("MlpPolicy", Rendezvous(), preactivation_reg=0.5, policy_kwargs=dict(net_arch=[8]))
     # agent a has 1 action component, b has 2: a's mean square (1 + 9) / 2 = 5, b's (4 + 16 + 0 + 0) / 4 = 5
-    raw = th.tensor([[[1.0, 2.0, 4.0], [3.0, 0.0, 0.0]]])  # (1 run, batch 2, joint action)
+    raw = th.tensor([[[1.0, 2.0, 4.0], [3.0, 0.0, 0.0]]], device=model.device)  # (1 run, batch 2, joint action)
     assert model._preactivation_penalty(raw).item() == pytest.approx(0.5 * (5 + 5))
     # a mixed pack (agent a Discrete(3): 3 logits, b continuous): only b's components count, and each run's sum
     mixed_env = make_vec_env(lambda: make_joint_env(Rendezvous(discrete=True)), n_envs=2, seed=0)
     mixed = MADDPG("MlpPolicy", mixed_env, preactivation_reg=0.5, n_runs=2,
                    policy_kwargs=dict(net_arch=[8]))  # fmt: skip
-    raw = th.tensor([[[9.0, 9.0, 9.0, 2.0, 4.0]], [[9.0, 9.0, 9.0, 1.0, 1.0]]])  # (2 runs, batch 1, joint action)
+    raw = th.tensor([[[9.0, 9.0, 9.0, 2.0, 4.0]], [[9.0, 9.0, 9.0, 1.0, 1.0]]], device=mixed.device)  # (runs, batch, action)
     assert mixed._preactivation_penalty(raw).item() == pytest.approx(0.5 * ((4 + 16) / 2 + (1 + 1) / 2))
 
     def saturate_then_train(reg: float) -> tuple[float, float]:
@@ -521,7 +522,7 @@ def test_preactivation_reg_is_each_agents_mean_square_and_pulls_saturated_actors
         with th.no_grad():
             for parameter in model.actor.parameters():
                 parameter.mul_(5.0)  # drive the actors deep into tanh's flat part
-        obs = th.as_tensor(model.replay_buffer.observations[:200, 0], dtype=th.float32)
+        obs = th.as_tensor(model.replay_buffer.observations[:200, 0], dtype=th.float32, device=model.device)
         with th.no_grad():
             before = model.actor.raw(obs).abs().mean().item()
         model.learn(300, reset_num_timesteps=False)

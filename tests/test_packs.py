@@ -132,7 +132,7 @@ def test_constant_bonus_control_adds_beta_and_counts_nothing():
     assert macb.num_codes == 0 and macb.total_count == 80 and not macb.hashes
     batch = model.replay_buffer.sample_runs(32, [np.random.default_rng(0)])
     stored = model.replay_buffer.agent_rewards[: model.replay_buffer.pos, 0]
-    assert set(np.unique(batch.rewards.numpy() - 0.5)) <= set(np.unique(stored))  # reward + beta exactly
+    assert set(np.unique(batch.rewards.cpu().numpy() - 0.5)) <= set(np.unique(stored))  # reward + beta exactly
     assert repr(macb).endswith("counts=False)")
     assert MACB(**macb.config).counts is False
 

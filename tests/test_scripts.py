@@ -284,7 +284,8 @@ def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
 
     listener = Conflating()
     scripted = types.SimpleNamespace(agent_layout=model.agent_layout, policy=types.SimpleNamespace(unscale_action=lambda a: a),
-                                     actor=lambda obs: th.as_tensor(listener.predict(obs.numpy())[0]))  # fmt: skip
+                                     actor=lambda obs: th.as_tensor(listener.predict(obs.numpy())[0]),
+                                     device=th.device("cpu"))  # fmt: skip
     model.get_run = lambda k: scripted
     rows = diagnostics.per_goal(model, 0, episodes=90, seed=6)
     assert rows[0]["final"] > 0.9 and rows[1]["final"] > 0.9 and rows[2]["final"] == 0.0
@@ -316,7 +317,7 @@ def test_collapse_diagnostics_continues_a_checkpoint_from_its_exact_state(tmp_pa
     again = diagnostics.continue_from_checkpoint(str(tmp_path), 30, 1e-3)
     plain = diagnostics.continue_from_checkpoint(str(tmp_path), 30, 0.0)
     assert first.num_timesteps == model.num_timesteps + 2 * 30 and first.preactivation_reg == 1e-3
-    weights = lambda m: th.cat([p.detach().flatten() for p in m.actor.parameters()])  # noqa: E731
+    weights = lambda m: th.cat([p.detach().cpu().flatten() for p in m.actor.parameters()])  # noqa: E731
     assert th.equal(weights(first), weights(again))  # the same state and settings give the same continuation
     assert not th.equal(weights(first), weights(model)) and not th.equal(weights(first), weights(plain))
 
@@ -353,7 +354,7 @@ def test_collapse_diagnostics_on_buffer_measures_each_critic_against_its_own_tar
     listener = model.agent_layout.action_slices[1]
     assert model.agent_layout.agents[1].startswith("listener") and buffer.dones[19, 1] == 1 and buffer.dones[:19, 1].sum() == 0
     model.critic_target = lambda obs, act: act[..., listener].sum(-1)[None, :, None, :].expand(1, 2, 2, -1)
-    model.actor_target = lambda obs: th.ones((*obs.shape[:-1], 5))
+    model.actor_target = lambda obs: th.ones((*obs.shape[:-1], 5), device=obs.device)
     first_episode = np.arange(20)
     rows = first_episode[np.random.default_rng(4).integers(0, 20, size=300)]
     rows = rows[rows < 19]

@@ -380,6 +380,15 @@ def test_a_storage_that_never_answers_fails_fast_with_a_clear_error():
     server.close()
 
 
+def test_a_storage_whose_database_driver_is_missing_names_the_extra_at_once(monkeypatch):
+    for driver in ("psycopg", "psycopg2"):
+        monkeypatch.setitem(sys.modules, driver, None)  # as if not installed
+    start = time.time()
+    with pytest.raises(ConnectionError, match=r"postgresql://user:\*\*\*@127.0.0.1:1/db: .*pip install 'sb3_macb\[postgres\]'"):
+        make_storage("postgresql://user:secret@127.0.0.1:1/db", 30, connect_timeout=1, deadline=20)
+    assert time.time() - start < 10  # no retries: a missing driver does not come back
+
+
 def test_train_help_lists_the_packages_options_and_optimize_runs_without_argv(tmp_path, capsys):
     from sb3_macb.zoo.train import make_parser
 

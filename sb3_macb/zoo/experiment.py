@@ -618,7 +618,7 @@ class Experiment:
             "train_env": snapshot(model.env),
             "eval_env": snapshot(callback.eval_env),
             "callback": callback.get_state(),
-            "rng": {"numpy": np.random.get_state(), "python": random.getstate(), "torch": th.get_rng_state()},
+            "rng": global_rng_states(),
         }
         with atomic_write(os.path.join(tmp, "state.pkl")) as file:
             pickle.dump(state, file, protocol=5)
@@ -649,8 +649,10 @@ class Experiment:
                 name = file.read().strip()
         except OSError:
             raise ExperimentError(f"{latest} cannot be read: no checkpoint to resume from") from None
+        # on the device a fresh start would use: a run started on a GPU continues on it
+        device = self.config.runs[0].hyperparams.get("device", "auto")
         model, state = load_checkpoint(os.path.join(root, name), config=self.config.comparable(),
-                                       experiment_file=os.path.join(self.folder, EXPERIMENT_FILE))  # fmt: skip
+                                       experiment_file=os.path.join(self.folder, EXPERIMENT_FILE), device=device)  # fmt: skip
         callback = self._eval_callback(restore(state["eval_env"]))
         callback.set_state(state["callback"])
         restore_global_rngs(state)
@@ -666,6 +668,7 @@ def load_checkpoint(
     config: dict[str, Any] | None = None,
     experiment_file: str = EXPERIMENT_FILE,
     allow_other_version: bool = False,
+    device: th.device | str = "auto",
 ) -> tuple[MADDPG, dict[str, Any]]:
     """
     The model of checkpoint ``folder`` with its training env and replay buffer restored, and the checkpoint's state
@@ -679,6 +682,7 @@ def load_checkpoint(
     :param experiment_file: The file ``config`` comes from, named in the error.
     :param allow_other_version: Accept a checkpoint written by another sb3_macb version (for diagnosis: a version
         whose arithmetic differs does not continue the run exactly).
+    :param device: The torch device to load the model on ("auto": CUDA where there is one, as a fresh run's default).
     """
     state_file = os.path.join(folder, "state.pkl")
     try:
@@ -692,7 +696,7 @@ def load_checkpoint(
         raise ExperimentError(f"{state_file} belongs to other settings than {experiment_file}")
     model_file = os.path.join(folder, "model.zip")
     try:
-        model = MADDPG.load(model_file, env=None, device="cpu")
+        model = MADDPG.load(model_file, env=None, device=device)
     except Exception as exc:  # noqa: BLE001
         raise ExperimentError(f"{model_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
     model.set_env(restore(state["train_env"]), force_reset=False)
@@ -705,11 +709,26 @@ def load_checkpoint(
     return model, state
 
 
+def global_rng_states() -> dict[str, Any]:
+    """
+    numpy's, Python's and torch's global random states, with CUDA's where CUDA has been used (MATD3's target policy
+    noise on a GPU draws from it).
+    """
+    states = {"numpy": np.random.get_state(), "python": random.getstate(), "torch": th.get_rng_state()}
+    if th.cuda.is_available() and th.cuda.is_initialized():
+        states["torch_cuda"] = th.cuda.get_rng_state_all()
+    return states
+
+
 def restore_global_rngs(state: dict[str, Any]) -> None:
-    """Set numpy's, Python's and torch's global random states to those a checkpoint's ``state`` recorded."""
+    """Set the global random states to those a checkpoint's ``state`` recorded (see :func:`global_rng_states`)."""
     np.random.set_state(state["rng"]["numpy"])
     random.setstate(state["rng"]["python"])
     th.set_rng_state(state["rng"]["torch"])
+    cuda = state["rng"].get("torch_cuda")
+    if cuda is not None and th.cuda.is_available():
+        for index, cuda_state in enumerate(cuda[: th.cuda.device_count()]):
+            th.cuda.set_rng_state(cuda_state, index)
 
 
 def run_experiment(

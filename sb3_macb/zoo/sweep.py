@@ -160,6 +160,9 @@ def make_storage(
             attempts,
             deadline=deadline,
         )  # fmt: skip
+    except ImportError as exc:  # no driver for the URL's database: no use retrying
+        hint = " (PostgreSQL: pip install 'sb3_macb[postgres]')" if url.startswith("postgresql") else ""
+        raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)}: {exc}{hint}") from None
     except Exception as exc:  # noqa: BLE001 (every way of failing to connect gets the same clear message)
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)} (gave up after {deadline:.0f} s): {message}") from None
