@@ -69,6 +69,7 @@ A post-hoc diagnosis: it decides nothing registered.
 """
 
 import argparse
+import inspect
 import json
 import os
 import re
@@ -79,11 +80,13 @@ import torch as th
 
 import sb3_macb
 from sb3_macb import MADDPG
+from sb3_macb.envs import communicative_navigation_v0
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.zoo.experiment import load_checkpoint, restore_global_rngs
 
 ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
-SUCCESS_RADIUS = 0.15  # the task's: the listener within 0.15 of the goal
+# the task's default success radius (the runs diagnosed here use the default), read from the task's signature
+SUCCESS_RADIUS = inspect.signature(communicative_navigation_v0.parallel_env).parameters["success_radius"].default
 
 
 def run_labels(experiment: str | None, n_runs: int) -> list[tuple[str, float, bool]]:

@@ -18,7 +18,6 @@ holds the evaluations reached so far (``run.json`` says ``complete`` only at the
 """
 
 import argparse
-import json
 import multiprocessing
 import os
 import shlex
@@ -61,7 +60,8 @@ def _exit_with_parent() -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], command: str) -> str:
+def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], command: str) -> tuple[str, bool]:
+    """Train (or resume) one pack; (the line to print, whether it failed)."""
     import torch as th
 
     _exit_with_parent()
@@ -86,8 +86,8 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
             status = "new"
         experiment.run(resume=status != "new")
     except ExperimentError as exc:
-        return f"{work}: ERROR {exc}"
-    return f"{work}: done ({', '.join(f'{v} seed {s}' for v, s in jobs)})"
+        return f"{work}: ERROR {exc}", True
+    return f"{work}: done ({', '.join(f'{v} seed {s}' for v, s in jobs)})", False
 
 
 def main() -> None:
@@ -115,9 +115,9 @@ def main() -> None:
         futures = [pool.submit(run_pack, args, work, jobs, command) for work, jobs in packs]
         failed = 0
         for future in futures:
-            result = future.result()
-            failed += ": ERROR " in result
-            print(result, flush=True)
+            line, error = future.result()
+            failed += error
+            print(line, flush=True)
     if failed:
         sys.exit(f"{failed} of {len(packs)} packs failed (see above)")
 
