@@ -7,7 +7,8 @@
 #   4. whether the same seed gives the same run on the GPU (benchmarks/cuda_determinism.py, default and deterministic).
 # Logs go to $OUT (default /tmp/gpu_check). Run from the repository root:  bash benchmarks/gpu_check.sh
 # PHASES="tests determinism" picks phases (default: all four); PYTEST_ARGS adds pytest options (e.g. --deselect).
-# With the package not installed, put the repository root on PYTHONPATH first.
+# With the package not installed, put the repository root on PYTHONPATH first. Without psycopg, deselect
+# tests/test_zoo.py::test_a_storage_that_never_answers_fails_fast_with_a_clear_error (it needs the driver).
 set -u
 out=${OUT:-/tmp/gpu_check}
 mkdir -p "$out"
@@ -30,7 +31,8 @@ if [[ " $phases " == *" throughput "* ]]; then
   timeout 90 $py benchmarks/throughput.py --quick --device cpu --rounds 2 --steps 300 --warmup 200 2>&1 | tee "$out/throughput_cpu.txt"
 fi
 if [[ " $phases " == *" packs "* ]]; then
-  echo "== packs on the GPU"
+  echo "== packs on the GPU: issue 11's sizes (8 at 64-64, 3 at 400-300), then large ones"
+  timeout 150 $py benchmarks/packed.py --device cuda --rounds 1 --steps-64 300 --steps-400 200 2>&1 | tee "$out/packed_cuda_bars.txt"
   timeout 150 $py benchmarks/packed.py --device cuda --rounds 1 --pack-64 32 --pack-400 12 --steps-64 300 --steps-400 200 \
     2>&1 | tee "$out/packed_cuda.txt"
 fi
