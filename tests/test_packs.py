@@ -190,6 +190,23 @@ def test_a_pack_with_discrete_agents_is_bit_identical_to_its_solo_runs():
             assert th.equal(a, b)
 
 
+def test_a_matd3_pack_is_bit_identical_to_its_solo_runs():
+    # target policy noise, delayed actor updates and twin critics: the noise comes from each run's own generator
+    def run(seeds):
+        model = MADDPG("MlpPolicy", make_task_vec_env(COMM, len(seeds)), n_runs=len(seeds), run_seeds=seeds, batch_size=16,
+                       learning_starts=40 * len(seeds), policy_delay=2, target_policy_noise=0.2,
+                       policy_kwargs=dict(net_arch=[16], n_critics=2), exploration=[MACB(0.8, 64) for _ in seeds])  # fmt: skip
+        model.learn(150 * len(seeds))
+        return model
+
+    pack = run([3, 4])
+    for k, seed in enumerate([3, 4]):
+        solo, member = run([seed]), pack.get_run(k)
+        assert solo._n_updates == member._n_updates > 0
+        for a, b in zip(solo.policy.state_dict().values(), member.policy.state_dict().values()):
+            assert th.equal(a, b), k
+
+
 @pytest.mark.parametrize("share_critics", [False, True])
 def test_a_pack_with_shared_networks_is_bit_identical_to_its_solo_runs(share_critics):
     from mpe2 import simple_spread_v3
