@@ -509,8 +509,8 @@ class MADDPG(TD3):
                 if self.target_policy_noise > 0:
                     # each run's noise from its own generator, so that a packed run is its solo run bit for bit
                     shape = next_actions.shape[1:]
-                    noise = th.as_tensor(np.stack([rng.standard_normal(size=shape) for rng in self._run_rngs]),
-                                         dtype=next_actions.dtype, device=self.device).mul_(self.target_policy_noise)  # fmt: skip
+                    draws = np.stack([rng.standard_normal(size=shape) for rng in self._run_rngs])
+                    noise = th.as_tensor(draws, dtype=next_actions.dtype, device=self.device).mul_(self.target_policy_noise)
                     if self.actor.has_discrete:
                         noise = noise.masked_fill(self.actor.discrete_mask, 0.0)  # (discrete targets stay one-hot)
                     next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
