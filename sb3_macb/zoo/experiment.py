@@ -711,8 +711,8 @@ def load_checkpoint(
 
 def global_rng_states() -> dict[str, Any]:
     """
-    numpy's, Python's and torch's global random states, with CUDA's where CUDA has been used (MATD3's target policy
-    noise on a GPU draws from it).
+    numpy's, Python's and torch's global random states, with CUDA's where CUDA has been used (the package's own
+    draws use per-run generators; user code and callbacks may draw from these).
     """
     states = {"numpy": np.random.get_state(), "python": random.getstate(), "torch": th.get_rng_state()}
     if th.cuda.is_available() and th.cuda.is_initialized():
