@@ -55,6 +55,15 @@ def gemm_rates(rows: int = 100, n_in: int = 400, n_out: int = 300, repeats: int 
     return rates
 
 
+def describe_device(device: str) -> str:
+    """The torch device and, for a CUDA one, the GPU's name (``cpu`` alone for the CPU)."""
+    import torch as th
+
+    if not device.startswith("cuda"):
+        return device
+    return f"{device} ({th.cuda.get_device_name(th.device(device)) if th.cuda.is_available() else 'no CUDA'})"
+
+
 def describe_backend() -> str:
     """One line: torch, threads, the GEMM rates of each backend and the path GroupedMLP takes at 400-300 and 64-64."""
     import torch as th

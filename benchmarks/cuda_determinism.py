@@ -1,7 +1,7 @@
 """
 Does the same seed give the same run on a GPU? Trains the same model twice from one seed on a CUDA device and
 compares the weights and the replay buffers bit for bit: MADDPG + MACB (400-300 and 64-64), MATD3 (target policy
-noise from torch's CUDA generator) and a pack of 3 runs.
+noise, delayed actor updates) and a pack of 3 runs.
 
     python benchmarks/cuda_determinism.py                    # PyTorch's defaults
     python benchmarks/cuda_determinism.py --deterministic    # torch.use_deterministic_algorithms(True)
@@ -18,6 +18,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.noise import NormalActionNoise
 
+from benchmarks_common import describe_device
 from sb3_macb import MACB, MADDPG
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 
@@ -60,8 +61,7 @@ def main() -> None:
     if args.deterministic:
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
         th.use_deterministic_algorithms(True)
-    name = th.cuda.get_device_name(th.device(args.device)) if args.device.startswith("cuda") else "CPU"
-    print(f"torch {th.__version__}, device {args.device} ({name}), deterministic algorithms: {args.deterministic}")
+    print(f"torch {th.__version__}, device {describe_device(args.device)}, deterministic algorithms: {args.deterministic}")
     cases: dict[str, Callable[[], MADDPG]] = {
         "MADDPG + MACB, 400-300": lambda: train(1, [400, 300], args.steps, args.device),
         "MADDPG + MACB, 64-64": lambda: train(1, [64, 64], args.steps, args.device),

@@ -25,6 +25,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.noise import NormalActionNoise
 
+from benchmarks_common import describe_device
 import sb3_macb
 from sb3_macb import MACB, MADDPG
 from sb3_macb.callbacks import MultiAgentEvalCallback, make_eval_vec_env
@@ -95,8 +96,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     print(f"sb3_macb {sb3_macb.__version__}, torch {th.__version__}, {platform.processor() or platform.machine()}, 1 thread")
-    if args.device != "cpu":
-        print(f"models on {args.device}: {th.cuda.get_device_name(th.device(args.device))}")
+    print(f"models on: {describe_device(args.device)}")
     print("GEMM 100x400 @ 400x300, GFLOP/s: " + ", ".join(f"{k} {v:.0f}" for k, v in gemm_rates().items()))
     print("paths: 400-300 layers per group through oneDNN" if onednn_available() else "paths: no oneDNN (bmm everywhere)",
           "| 64-64 layers batched over groups (baddbmm)")  # fmt: skip

@@ -24,7 +24,7 @@ from stable_baselines3 import DDPG
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 
-from benchmarks_common import describe_backend, speaker_listener, spread, spread4
+from benchmarks_common import describe_backend, describe_device, speaker_listener, spread, spread4
 from sb3_macb import MACB, MADDPG
 
 
@@ -82,9 +82,7 @@ def main() -> None:
     configs: dict[str, Callable[[], BaseAlgorithm]] = {
         "SB3 DDPG, Pendulum-v1, 400-300": lambda: new_model("ddpg", big),
         "MADDPG, speaker-listener (2 agents), 400-300": lambda: new_model("maddpg", big),
-        "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: new_model(
-            "maddpg", big, exploration=MACB(beta=0.8, k=512)
-        ),
+        "MADDPG + MACB(k=512), speaker-listener, 400-300": lambda: new_model("maddpg", big, exploration=MACB(beta=0.8, k=512)),
     }
     if not args.quick:
         configs.update(
@@ -102,17 +100,13 @@ def main() -> None:
     if args.features:
         configs = {
             "MADDPG, speaker-listener, continuous, 64-64": lambda: new_model("maddpg", small),
-            "MADDPG, speaker-listener, discrete (Gumbel-softmax), 64-64": lambda: new_model(
-                "maddpg-discrete", small
-            ),
+            "MADDPG, speaker-listener, discrete (Gumbel-softmax), 64-64": lambda: new_model("maddpg-discrete", small),
         }
         for n in (3, 6):
             for share in (False, True):
                 name = f"MADDPG, simple_spread N={n}, 64-64, {'shared actors and critics' if share else 'one network per agent'}"
                 kwargs = dict(share_parameters="all", share_critics=True) if share else {}
-                configs[name] = lambda n=n, kwargs=kwargs: new_model(
-                    f"spread-{n}", small, **kwargs
-                )
+                configs[name] = lambda n=n, kwargs=kwargs: new_model(f"spread-{n}", small, **kwargs)
     results: dict[str, list[float]] = {name: [] for name in configs}
     for _ in range(args.rounds):
         for name, build in configs.items():
@@ -121,8 +115,7 @@ def main() -> None:
     med = {name: statistics.median(values) for name, values in results.items()}
     print(f"\nthreads={args.threads} batch={args.batch_size} steps={args.steps} rounds={args.rounds} torch={th.__version__}")
     print(f"backend: {describe_backend()}")
-    if device != "cpu":
-        print(f"device: {device} ({th.cuda.get_device_name(th.device(device)) if th.cuda.is_available() else 'no CUDA'})")
+    print(f"device: {describe_device(device)}")
     print("| configuration | env steps/s (median) | min | max |")
     print("|---|---|---|---|")
     for name, values in results.items():
