@@ -109,6 +109,7 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     """Play ``episodes`` noise-free episodes with run ``k`` of ``model`` and measure it (see the module docstring)."""
     solo = model.get_run(k)
     layout = solo.agent_layout
+    listener = layout.agents[agent_index(layout, "listener")]
     env = make_task_vec_env(ENV_ID, episodes, {"reward": "sparse"})
     env.seed(seed)
     obs = env.reset()
@@ -124,7 +125,7 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
         actions.append(action)
         raws.append(raw)
         obs, _, dones, infos = env.step(solo.policy.unscale_action(action.cpu().numpy()))  # as predict(deterministic=True)
-        success = np.array([info["agent_infos"]["listener_0"]["success"] for info in infos])
+        success = np.array([info["agent_infos"][listener]["success"] for info in infos])
         reached |= success
         if dones.all():
             final = success
