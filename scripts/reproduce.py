@@ -11,7 +11,8 @@ each run's evaluations as ``results/<Task>-<reward>[-<suffix>]/<variant>/seed_<s
 Variants are those of ``zoo/hyperparams/maddpg.yml``, alone or combined with commas (``maddpg,refcode``: filed as
 ``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
 runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
-would be alone). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; running the same command
+would be alone), or with ``--mix-seeds`` the runs of all seeds, ``--pack`` to a process (for few variants and many
+seeds). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; running the same command
 again resumes unfinished packs from their checkpoints and skips finished ones, so the script can be stopped at
 any moment and re-run to go on. The ``evaluations.npz`` under results/ is rewritten at every checkpoint: it always
 holds the evaluations reached so far (``run.json`` says ``complete`` only at the end).
@@ -33,9 +34,17 @@ TASKS = {
 
 
 def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
-    """The packs: (work folder, [(variant, seed), ...]); the runs of one seed together, at most ``pack`` per pack."""
+    """
+    The packs: (work folder, [(variant, seed), ...]); the runs of one seed together, at most ``pack`` per pack, or
+    with ``--mix-seeds`` the runs of every seed in order (seed by seed, the variants of each in the order given) cut
+    into packs of ``pack``, so that few variants and several seeds still fill every process.
+    """
     _, folder, _ = TASKS[args.task]
     name = folder + (f"-{args.suffix}" if args.suffix else "")
+    if args.mix_seeds:
+        runs = [(variant, seed) for seed in args.seeds for variant in args.variants]
+        return [(os.path.join(args.work, name, f"mixed_{start // args.pack}"), runs[start : start + args.pack])
+                for start in range(0, len(runs), args.pack)]  # fmt: skip
     packs = []
     for seed in args.seeds:
         for start in range(0, len(args.variants), args.pack):
@@ -98,6 +107,8 @@ def main() -> None:
     parser.add_argument("-n", "--n-timesteps", type=int, default=800_000, help="steps per run")
     parser.add_argument("--fast", action="store_true", help="64-64 networks (the 'fast' variant)")
     parser.add_argument("--pack", type=int, default=1, help="runs trained together in one process (at most)")
+    parser.add_argument("--mix-seeds", action="store_true",
+                        help="fill packs with the runs of several seeds (the same command resumes them: keep the seeds, variants and --pack)")
     parser.add_argument("-j", "--jobs", type=int, default=1, help="packs in parallel (one thread each)")
     parser.add_argument("--checkpoint-freq", type=int, default=20_000, help="steps per run between checkpoints")
     parser.add_argument("--keep-models", action="store_true",

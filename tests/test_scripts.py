@@ -1,6 +1,7 @@
 """The result scripts under scripts/: episodes to a threshold, cutting runs at a budget, filing a sweep."""
 
 import csv
+import os
 import importlib.util
 import subprocess
 import sys
@@ -394,3 +395,31 @@ def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tm
     out = reproduce("maddpg", "maddpg,refcode", pack=2, work="work2", returncode=1)
     assert "share one env, but their env_kwargs differ" in out and "1 of 1 packs failed" in out
     assert not (tmp_path / "out" / "CommunicativeNavigation-sparse" / "maddpg" / "seed_0").exists()
+
+
+def test_reproduce_mix_seeds_fills_packs_across_seeds_with_the_same_runs(tmp_path):
+    import argparse
+
+    reproduce = load_script("reproduce")
+    args = argparse.Namespace(task="comm-sparse", suffix="x", work="w", seeds=[0, 1, 2], variants=["a", "b"], pack=4,
+                              mix_seeds=True)  # fmt: skip
+    packs = reproduce.plan(args)
+    assert [jobs for _, jobs in packs] == [[("a", 0), ("b", 0), ("a", 1), ("b", 1)], [("a", 2), ("b", 2)]]
+    assert [os.path.basename(work) for work, _ in packs] == ["mixed_0", "mixed_1"]
+    args.mix_seeds = False  # the default: one seed per pack
+    assert [jobs for _, jobs in reproduce.plan(args)] == [[("a", 0), ("b", 0)], [("a", 1), ("b", 1)], [("a", 2), ("b", 2)]]
+
+    def run(seeds: list[str], out: str, *extra: str) -> Path:
+        command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--variants", "maddpg", "--seeds", *seeds,
+                   "--fast", "-n", "300", "--checkpoint-freq", "200", "--work", str(tmp_path / out / "work"),
+                   "-o", str(tmp_path / out), *extra]  # fmt: skip
+        done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=Path(__file__).parent.parent)
+        assert done.returncode == 0, done.stderr
+        return tmp_path / out / "CommunicativeNavigation-sparse" / "maddpg"
+
+    mixed = run(["0", "1"], "mixed", "--mix-seeds", "--pack", "2")
+    assert (tmp_path / "mixed" / "work" / "CommunicativeNavigation-sparse" / "mixed_0").is_dir()
+    alone = run(["1"], "alone")
+    a, b = np.load(mixed / "seed_1" / "evaluations.npz"), np.load(alone / "seed_1" / "evaluations.npz")
+    assert len(a["results"]) > 0 and np.array_equal(a["results"], b["results"])
+    assert not np.array_equal(a["results"], np.load(mixed / "seed_0" / "evaluations.npz")["results"])
