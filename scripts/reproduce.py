@@ -108,11 +108,11 @@ def main() -> None:
     parser.add_argument("--fast", action="store_true", help="64-64 networks (the 'fast' variant)")
     parser.add_argument("--pack", type=int, default=1, help="runs trained together in one process (at most)")
     parser.add_argument("--mix-seeds", action="store_true",
-                        help="fill packs with the runs of several seeds (the same command resumes them: keep the seeds, variants and --pack)")
+                        help="fill packs with the runs of several seeds (resume with the same seeds, variants and --pack)")
     parser.add_argument("-j", "--jobs", type=int, default=1, help="packs in parallel (one thread each)")
     parser.add_argument("--checkpoint-freq", type=int, default=20_000, help="steps per run between checkpoints")
     parser.add_argument("--keep-models", action="store_true",
-                        help="keep every checkpoint's model in <work>/<pack>/models/ (scripts/collapse_diagnostics.py reads them)")
+                        help="keep every checkpoint's model in <work>/<pack>/models/ (for scripts/collapse_diagnostics.py)")
     parser.add_argument("--suffix", default="", help="results/<Task>-<reward>-SUFFIX/")
     parser.add_argument("-o", "--out", default="results")
     parser.add_argument("--work", default=os.path.join("logs", "reproduce"), help="checkpoints (not for git)")
