@@ -423,3 +423,32 @@ def test_reproduce_mix_seeds_fills_packs_across_seeds_with_the_same_runs(tmp_pat
     a, b = np.load(mixed / "seed_1" / "evaluations.npz"), np.load(alone / "seed_1" / "evaluations.npz")
     assert len(a["results"]) > 0 and np.array_equal(a["results"], b["results"])
     assert not np.array_equal(a["results"], np.load(mixed / "seed_0" / "evaluations.npz")["results"])
+
+
+def test_refcode_analysis_applies_its_registered_rules(tmp_path):
+    analysis = load_script("refcode_analysis")
+    n = 1000
+    plain, refcode = tmp_path / "plain", tmp_path / "refcode"
+    for seed, level in enumerate([0.3, 0.4, 0.3, 0.9, 0.9]):  # seeds 3 and 4 are not among the refcode seeds
+        write_headline_run(plain / "maddpg" / f"seed_{seed}", [level] * n, [level] * n)
+    for seed in range(3):
+        write_headline_run(refcode / "maddpg+refcode" / f"seed_{seed}", [0.6] * n, [0.6] * n)
+        write_headline_run(refcode / "macb_constant+refcode" / f"seed_{seed}", [1.0] * n, [1.0] * n, complete=seed < 2)
+    assert "R2, the offset under that handling (macb_constant+refcode against maddpg+refcode): INTERIM" in \
+        analysis.analyse(str(refcode), str(plain), 3)  # fmt: skip
+    write_headline_run(refcode / "macb_constant+refcode" / "seed_2", [1.0] * n, [1.0] * n)
+    report = analysis.analyse(str(refcode), str(plain), 3)
+    assert "| maddpg (plain, plain) | 0, 1, 2 | 0.333 (0.300, 0.400, 0.300) | 0 of 3 |" in report
+    assert "**change**" in report and "**helps**" in report and "**reproduced through the offset**" in report
+    # MADDPG reaching 90% once is enough to say the paper's picture is not reproduced
+    write_headline_run(refcode / "maddpg+refcode" / "seed_1", [0.9] * n, [0.9] * n)
+    report = analysis.analyse(str(refcode), str(plain), 3)
+    assert "**not reproduced**" in report and "**helps**" in report  # 1.0 against a mean of 0.7
+
+    runs = lambda levels: [analysis.Run(i, 0.0, False, a, a) for i, a in enumerate(levels)]  # noqa: E731
+    assert analysis.decide_r1(runs([0.40, 0.45, 0.50]), runs([0.38, 0.41, 0.38])) == "no change detected"  # overlap
+    assert analysis.decide_r1(runs([0.42, 0.45, 0.50]), runs([0.38, 0.41, 0.38])) == "change"
+    assert analysis.decide_r1(runs([0.42, 0.42, 0.42]), runs([0.38, 0.41, 0.38])) == "no change detected"  # < 0.05
+    assert analysis.decide_r2(runs([0.1, 0.2, 0.3]), runs([0.6, 0.6, 0.6])) == "hurts"
+    assert analysis.decide_r2(runs([0.1, 0.2, 0.7]), runs([0.6, 0.6, 0.6])) == "no effect detected"
+    assert analysis.decide_r2(runs([0.7, 0.7, 0.5]), runs([0.6, 0.6, 0.6])) == "no effect detected"
