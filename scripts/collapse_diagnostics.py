@@ -89,20 +89,19 @@ ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
 SUCCESS_RADIUS = inspect.signature(communicative_navigation_v0.parallel_env).parameters["success_radius"].default
 
 
-def run_labels(experiment: str | None, n_runs: int) -> list[tuple[str, float, bool]]:
-    """(variant, beta, constant bonus?) of each run of the pack, from ``experiment.json`` (beta 0 without a bonus)."""
+def run_labels(experiment: str | None, model: MADDPG) -> list[tuple[str, float, bool]]:
+    """
+    (name, beta, constant bonus?) of each run of the pack: the bonus from the model itself (beta 0 without one), the
+    name from ``experiment.json`` if given (its variants), else ``run k``.
+    """
+    bonuses = [(0.0, False) if e is None else (float(e.beta), not e.counts) for e in model.explorations]
     if experiment is None:
-        return [(f"run {k}", 0.0, False) for k in range(n_runs)]
+        return [(f"run {k}", beta, constant) for k, (beta, constant) in enumerate(bonuses)]
     with open(experiment) as file:
         runs = json.load(file)["config"]["runs"]
-    if len(runs) != n_runs:
-        raise SystemExit(f"{experiment} has {len(runs)} runs, the model {n_runs}: not this pack's experiment")
-    labels = []
-    for run in runs:
-        bonus = run["hyperparams"].get("exploration") or {}
-        constant = bool(bonus) and bonus.get("counts", True) is False
-        labels.append(("+".join(run["variants"]) or "run", float(bonus.get("beta", 0.0)), constant))
-    return labels
+    if len(runs) != model.n_runs:
+        raise SystemExit(f"{experiment} has {len(runs)} runs, the model {model.n_runs}: not this pack's experiment")
+    return [("+".join(run["variants"]) or "run", beta, constant) for run, (beta, constant) in zip(runs, bonuses)]
 
 
 def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, seed: int) -> dict[str, float]:
@@ -357,7 +356,7 @@ def main() -> None:
         return int(found[-1]) if found else 0
 
     def rows(name: str, model: MADDPG) -> None:
-        for k, (label, beta, constant) in enumerate(run_labels(args.experiment, model.n_runs)):
+        for k, (label, beta, constant) in enumerate(run_labels(args.experiment, model)):
             d = diagnose(model, k, beta, constant, args.episodes, args.seed)
             low, high = d["Q range"]  # type: ignore[misc]
             print(f"| {name} | {label} | {d['any']:.2f} | {d['final']:.2f} | {d['sat spk']:.2f} | "
@@ -379,7 +378,7 @@ def main() -> None:
         for path in sorted(args.models, key=step_of):
             name = display_name(path)
             model = MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu")
-            for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model.n_runs)):
+            for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model)):
                 for row in per_goal(model, k, args.episodes, args.seed):
                     message = ", ".join(f"{v:.2f}" for v in row["message"])
                     ends = " / ".join(f"{v:.2f}" for v in row["ends"])
@@ -409,7 +408,7 @@ def main() -> None:
                 raise SystemExit(f"{path} is not an earlier model of the pack of {args.buffer_of}")
             everything = np.arange(rows)
         newest = everything[-args.recent :]
-        for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model.n_runs)):
+        for k, (label, _beta, _constant) in enumerate(run_labels(args.experiment, model)):
             for window, candidates in ((f"all {len(everything)}", everything), (f"newest {len(newest)}", newest)):
                 d = on_buffer(model, k, candidates, args.samples, args.seed, buffer)
                 cells = [display_name(path), label, window, f"{d['r']:+.2f}"]

@@ -232,9 +232,12 @@ def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
     runs = [{"variants": ["maddpg"], "hyperparams": {"exploration": None}},
             {"variants": ["macb_constant"], "hyperparams": {"exploration": {"beta": 0.8, "counts": False}}}]  # fmt: skip
     experiment.write_text(json.dumps({"config": {"runs": runs}}))
-    assert diagnostics.run_labels(str(experiment), 2) == [("maddpg", 0.0, False), ("macb_constant", 0.8, True)]
+    assert diagnostics.run_labels(str(experiment), model) == [("maddpg", 0.0, False), ("macb_constant", 0.8, True)]
+    # without the experiment file the bonus still comes from the model (a filed run's model.zip has none beside it)
+    assert diagnostics.run_labels(None, model) == [("run 0", 0.0, False), ("run 1", 0.8, True)]
+    experiment.write_text(json.dumps({"config": {"runs": runs + runs[:1]}}))
     with pytest.raises(SystemExit, match="not this pack's experiment"):
-        diagnostics.run_labels(str(experiment), 3)
+        diagnostics.run_labels(str(experiment), model)
 
     fresh = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0)
     assert fresh["Q range"] == pytest.approx((-20.0, 80.0))  # (0.8 - 1) / 0.01 and 0.8 / 0.01
