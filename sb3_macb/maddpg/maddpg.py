@@ -492,6 +492,16 @@ class MADDPG(TD3):
                 self.logger.record("exploration/mean_bonus", mean_bonus)
         super().dump_logs()
 
+    def _per_run_draws(self, distribution: str, shape: tuple[int, ...]) -> th.Tensor:
+        """
+        One float32 array of ``shape`` per run from that run's own generator (``distribution``: a method of
+        ``np.random.Generator``), stacked to ``(n_runs, *shape)`` on the model's device: a packed run draws what its
+        solo run draws.
+        """
+        assert self._run_rngs is not None
+        draws = np.stack([getattr(rng, distribution)(size=shape) for rng in self._run_rngs])
+        return th.as_tensor(draws, dtype=th.float32, device=self.device)
+
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
@@ -508,9 +518,7 @@ class MADDPG(TD3):
                 next_actions = self.actor_target(data.next_observations)
                 if self.target_policy_noise > 0:
                     # each run's noise from its own generator, so that a packed run is its solo run bit for bit
-                    shape = next_actions.shape[1:]
-                    draws = np.stack([rng.standard_normal(size=shape) for rng in self._run_rngs])
-                    noise = th.as_tensor(draws, dtype=next_actions.dtype, device=self.device).mul_(self.target_policy_noise)
+                    noise = self._per_run_draws("standard_normal", next_actions.shape[1:]).mul_(self.target_policy_noise)
                     if self.actor.has_discrete:
                         noise = noise.masked_fill(self.actor.discrete_mask, 0.0)  # (discrete targets stay one-hot)
                     next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
@@ -532,9 +540,7 @@ class MADDPG(TD3):
                 if self.actor.has_discrete:
                     # discrete agents: a Gumbel-max sample with the straight-through Gumbel-softmax gradient, the
                     # noise drawn by each run's own generator; their logits are kept small as in the MADDPG paper
-                    shape = (batch_size, self.agent_layout.action_dim)  # type: ignore[union-attr]
-                    gumbel = th.as_tensor(np.stack([rng.gumbel(size=shape) for rng in self._run_rngs]), dtype=th.float32,
-                                          device=self.device)  # fmt: skip
+                    gumbel = self._per_run_draws("gumbel", (batch_size, self.agent_layout.action_dim))  # type: ignore[union-attr]
                     raw = self.actor.raw(data.observations)
                     pi = self.actor.squash(raw, gumbel, straight_through=True).unsqueeze(1)
                     penalty = 1e-3 * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
