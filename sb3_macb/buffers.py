@@ -26,15 +26,19 @@ class MultiAgentReplayBuffer(ReplayBuffer):
     """
     SB3's ``ReplayBuffer`` that also stores every agent's own reward (``info["agent_rewards"]`` of the joint env).
 
+    ``buffer_size`` is what each run holds: SB3 divides it by the number of envs, so a solo run with ``n_envs`` envs
+    keeps ``buffer_size // n_envs`` rows per env; a pack of ``n_runs`` runs allocates ``n_runs * buffer_size``
+    transitions, so that every run of the pack keeps exactly as many rows as it would alone.
+
     ``sample()`` returns SB3's ``ReplayBufferSamples`` whose ``rewards`` has shape ``(batch_size, n_agents)``:
     column ``i`` is agent ``i``'s reward, which its critic learns from. The team reward (sum) stays in
     ``self.rewards`` as in SB3.
 
-    :param buffer_size: Max number of elements in the buffer.
+    :param buffer_size: Max number of transitions of each run (of all its envs together, as in SB3).
     :param observation_space: Joint observation space.
     :param action_space: Joint action space.
     :param device: PyTorch device.
-    :param n_envs: Number of parallel environments.
+    :param n_envs: Number of parallel environments (of all runs).
     :param optimize_memory_usage: SB3's memory efficient variant (see ``ReplayBuffer``).
     :param handle_timeout_termination: Bootstrap at time-limit ends (``TimeLimit.truncated``).
     :param n_agents: Number of agents (set by MADDPG from the env).
@@ -56,8 +60,10 @@ class MultiAgentReplayBuffer(ReplayBuffer):
     ):
         if n_runs < 1 or n_envs % n_runs:
             raise ValueError(f"The {n_envs} envs cannot be split evenly between {n_runs} runs")
+        if isinstance(buffer_size, bool) or not isinstance(buffer_size, (int, np.integer)) or buffer_size < 1:
+            raise ValueError(f"buffer_size must be an integer >= 1, got {buffer_size!r}")
         super().__init__(
-            buffer_size,
+            int(buffer_size) * n_runs,  # SB3 keeps (n_runs * buffer_size) // n_envs = buffer_size // envs_per_run rows
             observation_space,
             action_space,
             device=device,
@@ -69,6 +75,11 @@ class MultiAgentReplayBuffer(ReplayBuffer):
         self.n_runs = n_runs
         self.envs_per_run = n_envs // n_runs
         self.agent_rewards = np.zeros((self.buffer_size, self.n_envs, n_agents), dtype=np.float32)
+
+    @property
+    def buffer_size_per_run(self) -> int:
+        """Transitions each run holds when full (rows per env times the run's envs)."""
+        return self.buffer_size * self.envs_per_run
 
     def add(
         self,
@@ -136,15 +147,28 @@ class MultiAgentReplayBuffer(ReplayBuffer):
 
     def load_state_arrays(self, arrays: Any) -> None:
         """Restore what :meth:`state_arrays` returned (into a buffer of the same size and number of envs)."""
+        if "_position" not in arrays or np.shape(arrays["_position"]) != (4,):
+            raise ValueError("the saved replay buffer has no '_position' array of 4 integers")
         pos, full, size, n_envs = (int(v) for v in arrays["_position"])
         if (size, n_envs) != (self.buffer_size, self.n_envs):
             raise ValueError(
                 f"The saved replay buffer has size {size} with {n_envs} envs; this one has {self.buffer_size} and {self.n_envs}"
             )
+        if not (0 <= pos < size or (pos == size and not full)):
+            raise ValueError(f"the saved replay buffer's write position {pos} lies outside its {size} rows")
+        rows = size if full else pos
+        for name in self._array_names:  # every array, whole: a missing or short one is an error, not zeros
+            mine = getattr(self, name)
+            if mine is None:
+                continue
+            if name not in arrays:
+                raise ValueError(f"the saved replay buffer has no '{name}' array")
+            saved = arrays[name]
+            if saved.shape != (rows, *mine.shape[1:]):
+                raise ValueError(f"the saved replay buffer's '{name}' has shape {saved.shape}, expected {(rows, *mine.shape[1:])}")
         for name in self._array_names:
-            if getattr(self, name) is not None and name in arrays:
-                saved = arrays[name]
-                getattr(self, name)[: len(saved)] = saved
+            if getattr(self, name) is not None:
+                getattr(self, name)[:rows] = arrays[name]
         self.pos, self.full = pos, bool(full)
 
     def _sample_env_indices(self, n: int) -> np.ndarray | int:

@@ -110,8 +110,13 @@ def make_eval_vec_env(
     :param seeds: One seed per run (None: unseeded).
     :param env_kwargs: Keyword arguments for the env.
     """
+    import gymnasium as gym
+
     from sb3_macb.envs.vec_tasks import make_task_vec_env
 
+    if not isinstance(env_id, str) or ":" in env_id or env_id not in gym.registry:
+        # (gymnasium imports the module of a "module:Env" id: only ids already registered are taken)
+        raise ValueError(f"eval_env {env_id!r} is not a registered gymnasium env id")
     env = make_task_vec_env(env_id, n_eval_episodes * len(seeds), env_kwargs)
     env.unwrapped._seeds = [None if seed is None else seed + i for seed in seeds for i in range(n_eval_episodes)]
     return env
@@ -135,7 +140,7 @@ class MultiAgentEvalCallback(EvalCallback):
     after another, see :func:`make_eval_vec_env`); every run gets its own records and its own file
     (``run_log_paths[k]/evaluations.npz``); the logged values are means over the runs.
 
-    :param eval_env: The evaluation env: a VecEnv, a gymnasium env, or an env id (a DummyVecEnv of
+    :param eval_env: The evaluation env: a VecEnv, a gymnasium env, or a registered env id (a DummyVecEnv of
         ``n_eval_episodes`` copies per run is built, so that an evaluation is one batch of episodes).
     :param n_eval_episodes: Episodes per evaluation (and run).
     :param eval_freq: Evaluate every ``eval_freq`` calls (environment steps per env).

@@ -18,13 +18,14 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     if command == "train":
+        from sb3_macb.common.atomic import AtomicWriteError
         from sb3_macb.zoo.experiment import ExperimentError
         from sb3_macb.zoo.train import train
 
         debug = "--debug" in rest
         try:
             train([a for a in rest if a != "--debug"])
-        except ExperimentError as exc:  # a user's mistake: one line, no traceback (unless --debug)
+        except (ExperimentError, AtomicWriteError) as exc:  # a user's mistake, a full disk: one line (--debug: traceback)
             if debug:
                 raise
             print(f"sb3-macb train: error: {exc}", file=sys.stderr)
@@ -40,7 +41,11 @@ def main(argv: list[str] | None = None) -> int:
     elif command == "plot":
         from sb3_macb.zoo.plots import main as plot
 
-        plot(rest)
+        try:
+            plot(rest)
+        except FileNotFoundError as exc:  # a group or file that is not there: one line
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     else:
         print(f"sb3-macb: unknown command '{command}'\n\n{USAGE}", file=sys.stderr)
         return 2

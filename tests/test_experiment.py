@@ -92,7 +92,7 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
     # killed before its first checkpoint: no silent fresh start
     os.makedirs(folder)
     Experiment(small_config(tmp_path), folder)._write_experiment_file(done=False)
-    with pytest.raises(ExperimentError, match="LATEST does not exist"):
+    with pytest.raises(ExperimentError, match="holds no complete checkpoint"):
         Experiment(small_config(tmp_path), folder).run(resume=True)
     with pytest.raises(ExperimentError, match="already holds an experiment"):
         Experiment(small_config(tmp_path), folder).run()
@@ -101,9 +101,9 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
     Experiment(small_config(tmp_path), folder, checkpoint_freq=50, keep_checkpoint=True, verbose=0).run()
     os.remove(os.path.join(folder, "experiment.json"))
     Experiment(small_config(tmp_path), folder)._write_experiment_file(done=False)  # as if stopped after a checkpoint
-    with pytest.raises(ExperimentError, match=r"differ from those in .*experiment.json in \['n_timesteps'\]"):
+    with pytest.raises(ExperimentError, match=r"differ from those in .*experiment.json: n_timesteps: 200 -> 400\. Resume"):
         Experiment(small_config(tmp_path, steps=400), folder).run(resume=True)
-    with pytest.raises(ExperimentError, match="runs"):
+    with pytest.raises(ExperimentError, match=r"runs\[0\]\.seed: 0 -> 1"):
         Experiment(small_config(tmp_path, seed=1), folder).run(resume=True)
     checkpoint = os.path.join(folder, "checkpoint", "step_150")
     state = os.path.join(checkpoint, "state.pkl")

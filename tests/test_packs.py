@@ -14,7 +14,7 @@ COMM = "sb3_macb/CommunicativeNavigation-v0"
 FIELDS = ("timesteps", "results", "successes", "final_successes", "episodes", "num_codes", "count1_fraction")
 
 
-def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision="fp32"):
+def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision="fp32", buffer_size=1_000_000):
     """A pack (or a solo run, with one seed) on Communicative Navigation, evaluated every episode."""
     n = len(seeds)
     noises = [NormalActionNoise(np.zeros(5), s * np.ones(5)) for s in (sigmas or [0.1] * n)]
@@ -26,6 +26,7 @@ def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision=
         exploration=explorations,
         action_noise=noises,
         batch_size=16,
+        buffer_size=buffer_size,
         learning_starts=40 * n,
         policy_kwargs=dict(net_arch=list(net_arch), precision=precision),
     )
@@ -42,9 +43,12 @@ def settings():
 def test_every_run_of_a_pack_is_bit_identical_to_its_solo_run(net_arch):
     seeds, sigmas = [3, 4, 5, 6], [0.1, 0.2, 0.1, 0.3]
     steps = 300 if net_arch == (32, 32) else 120
-    pack, pack_cb = train(seeds, settings(), steps, net_arch, sigmas)
+    buffer_size = steps // 3  # every run's buffer wraps twice: each run keeps buffer_size transitions, as alone
+    pack, pack_cb = train(seeds, settings(), steps, net_arch, sigmas, buffer_size=buffer_size)
+    assert pack.replay_buffer.full and pack.replay_buffer.buffer_size_per_run == buffer_size
     for k, (seed, exploration) in enumerate(zip(seeds, settings())):
-        solo, solo_cb = train([seed], [exploration], steps, net_arch, [sigmas[k]])
+        solo, solo_cb = train([seed], [exploration], steps, net_arch, [sigmas[k]], buffer_size=buffer_size)
+        assert solo.replay_buffer.buffer_size == pack.replay_buffer.buffer_size
         for name in FIELDS:
             assert np.array_equal(np.asarray(solo_cb.records[0][name]), np.asarray(pack_cb.records[k][name])), (k, name)
         run = pack.get_run(k)
@@ -63,9 +67,9 @@ def test_every_run_of_a_pack_is_bit_identical_to_its_solo_run(net_arch):
 def test_a_bf16_pack_is_bit_identical_to_its_solo_runs():
     # large layers run group by group, so bfloat16 rounding does not depend on the other runs either
     seeds = [3, 4]
-    pack, pack_cb = train(seeds, [MACB(0.8, 64), None], 100, (128, 96), precision="bf16")
+    pack, pack_cb = train(seeds, [MACB(0.8, 64), None], 100, (128, 96), precision="bf16", buffer_size=60)
     for k, (seed, exploration) in enumerate(zip(seeds, [MACB(0.8, 64), None])):
-        solo, solo_cb = train([seed], [exploration], 100, (128, 96), precision="bf16")
+        solo, solo_cb = train([seed], [exploration], 100, (128, 96), precision="bf16", buffer_size=60)
         for name in FIELDS:
             assert np.array_equal(np.asarray(solo_cb.records[0][name]), np.asarray(pack_cb.records[k][name])), (k, name)
         run = pack.get_run(k)
@@ -179,8 +183,9 @@ def test_a_pack_with_discrete_agents_is_bit_identical_to_its_solo_runs():
     def run(seeds):
         env = make_vec_env(lambda: make_joint_env(Rendezvous(discrete=True)), n_envs=len(seeds))
         model = MADDPG("MlpPolicy", env, n_runs=len(seeds), run_seeds=seeds, batch_size=8, learning_starts=20 * len(seeds),
-                       policy_kwargs=dict(net_arch=[16]), exploration=[MACB(0.5, 16) for _ in seeds])  # fmt: skip
+                       buffer_size=50, policy_kwargs=dict(net_arch=[16]), exploration=[MACB(0.5, 16) for _ in seeds])  # fmt: skip
         model.learn(120 * len(seeds))
+        assert model.replay_buffer.full
         return model
 
     pack = run([3, 4])
@@ -194,9 +199,10 @@ def test_a_matd3_pack_is_bit_identical_to_its_solo_runs():
     # target policy noise, delayed actor updates and twin critics: the noise comes from each run's own generator
     def run(seeds):
         model = MADDPG("MlpPolicy", make_task_vec_env(COMM, len(seeds)), n_runs=len(seeds), run_seeds=seeds, batch_size=16,
-                       learning_starts=40 * len(seeds), policy_delay=2, target_policy_noise=0.2,
+                       learning_starts=40 * len(seeds), policy_delay=2, target_policy_noise=0.2, buffer_size=60,
                        policy_kwargs=dict(net_arch=[16], n_critics=2), exploration=[MACB(0.8, 64) for _ in seeds])  # fmt: skip
         model.learn(150 * len(seeds))
+        assert model.replay_buffer.full
         return model
 
     pack = run([3, 4])
@@ -218,9 +224,10 @@ def test_a_pack_with_shared_networks_is_bit_identical_to_its_solo_runs(share_cri
         env = make_vec_env(lambda: make_joint_env(simple_spread_v3.parallel_env(N=3, continuous_actions=True, max_cycles=10)),
                            n_envs=len(seeds))  # fmt: skip
         model = MADDPG("MlpPolicy", env, n_runs=len(seeds), run_seeds=seeds, batch_size=8, learning_starts=20 * len(seeds),
-                       policy_kwargs=dict(net_arch=[16]), share_parameters="all", share_critics=share_critics,
+                       buffer_size=30, policy_kwargs=dict(net_arch=[16]), share_parameters="all", share_critics=share_critics,
                        action_noise=[NormalActionNoise(np.zeros(15), 0.1 * np.ones(15)) for _ in seeds])  # fmt: skip
         model.learn(80 * len(seeds))
+        assert model.replay_buffer.full
         return model
 
     pack = run([5, 6])
@@ -228,3 +235,38 @@ def test_a_pack_with_shared_networks_is_bit_identical_to_its_solo_runs(share_cri
         solo, member = run([seed]), pack.get_run(k)
         for a, b in zip([*solo.actor.parameters(), *solo.critic.parameters()], [*member.actor.parameters(), *member.critic.parameters()]):
             assert th.equal(a, b)
+
+
+def test_each_run_of_a_pack_keeps_buffer_size_transitions_and_its_own_update_count():
+    # SB3's ReplayBuffer divides buffer_size by the number of envs; a pack's buffer must not shrink each run's share
+    pack = MADDPG("MlpPolicy", make_task_vec_env(COMM, 3), n_runs=3, run_seeds=[0, 1, 2], buffer_size=600,
+                  policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+    assert pack.replay_buffer.buffer_size == 600 and pack.replay_buffer.buffer_size_per_run == 600
+    assert pack.replay_buffer.observations.shape[:2] == (600, 3)
+    two_envs = MADDPG("MlpPolicy", make_task_vec_env(COMM, 4), n_runs=2, run_seeds=[0, 1], buffer_size=600,
+                      policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+    assert two_envs.replay_buffer.buffer_size_per_run == 600 and two_envs.replay_buffer.buffer_size == 300
+    # gradient_steps=-1 (as many updates as steps) counts one run's steps, not the pack's
+    updates = []
+    for n in (1, 3):
+        model = MADDPG("MlpPolicy", make_task_vec_env(COMM, n), n_runs=n, run_seeds=list(range(n)), gradient_steps=-1,
+                       train_freq=5, learning_starts=20 * n, batch_size=8, policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+        model.learn(60 * n)
+        updates.append(model._n_updates)
+    assert updates[0] == updates[1] > 0
+    with pytest.raises(ValueError, match="train_freq"):
+        MADDPG("MlpPolicy", make_task_vec_env(COMM, 2), n_runs=2, train_freq=(1, "episode"), policy_kwargs=dict(net_arch=[8]))
+
+
+def test_one_macb_object_given_for_every_run_is_copied_per_run():
+    shared = MACB(0.8, 32)
+    model = MADDPG("MlpPolicy", make_task_vec_env(COMM, 2), n_runs=2, run_seeds=[0, 1], exploration=[shared] * 2,
+                   learning_starts=20, batch_size=8, policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+    first, second = model.explorations
+    assert first is not second and first.tables[0] is not second.tables[0]
+    assert not np.array_equal(first.hashes[0].matrix_t, second.hashes[0].matrix_t)  # each seeded by its run's seed
+    model.learn(2 * 50)
+    assert first.total_count == second.total_count == 50  # each counts its own run's 50 transitions
+    solo = MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), seed=1, exploration=MACB(0.8, 32), learning_starts=10,
+                  batch_size=8, policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+    assert np.array_equal(solo.exploration.hashes[0].matrix_t, second.hashes[0].matrix_t)

@@ -41,6 +41,20 @@ def _onednn_linear_op() -> Any:
 _LINEAR = _onednn_linear_op()
 
 
+def _onednn_bf16_works() -> bool:
+    """Whether oneDNN's GEMM takes bfloat16 on this CPU (it needs native bfloat16 support, e.g. AVX-512 BF16)."""
+    if _LINEAR is None:
+        return False
+    try:
+        x, w = th.ones(ONEDNN_MIN_ROWS, 128, dtype=th.bfloat16), th.ones(128, 128, dtype=th.bfloat16)
+        return bool(th.allclose(_LINEAR(x, w, None, "relu", [], "").float(), (x.float() @ w.float().t())))
+    except RuntimeError:
+        return False
+
+
+_BF16_LINEAR = _onednn_bf16_works()
+
+
 def onednn_available() -> bool:
     """Whether the oneDNN CPU path can be used in this PyTorch build."""
     return _LINEAR is not None
@@ -327,6 +341,7 @@ class GroupedMLP(nn.Module):
         # bfloat16 for the large layers of minibatches only: small products (small layers; acting and evaluating on
         # a few rows) are faster in float32
         use_low = self._low_dtype is not None and self._large and x.shape[-2] >= ONEDNN_MIN_ROWS
+        large = large and (not use_low or _BF16_LINEAR)  # bfloat16 without oneDNN's: the batched path, cast
         low = self._low_params(weights + biases) if use_low and large else None
         if detach_params:
             weights = [w.detach() for w in weights]

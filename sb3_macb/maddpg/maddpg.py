@@ -16,7 +16,7 @@ from stable_baselines3.common.noise import (
 )
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule, TrainFrequencyUnit
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.td3 import TD3
 
@@ -53,19 +53,20 @@ class MADDPG(TD3):
     has its own networks, optimizer state (Adam is element-wise), minibatches, action noise, MACB count table and
     random streams (``run_seeds``), and ``get_run(k)`` hands run ``k`` out as an ordinary model. Step counts
     (``total_timesteps``, ``learning_starts``, ``num_timesteps``) are, as everywhere in SB3, summed over all envs:
-    K runs of T steps each are ``learn(K * T)``. Run ``k`` is the same experiment as a model with ``n_runs=1`` and
+    K runs of T steps each are ``learn(K * T)``. ``buffer_size`` and ``gradient_steps=-1`` are per run: each run
+    keeps ``buffer_size`` transitions and does as many updates as a solo run. Run ``k`` is the same experiment as a model with ``n_runs=1`` and
     ``seed=run_seeds[k]`` (bit for bit on CPU's oneDNN path, see the tests).
 
     :param policy: The policy model to use (``"MlpPolicy"``).
     :param env: The environment to learn from: a joint env, a PettingZoo env, or a registered env id.
     :param learning_rate: Learning rate for Adam (actors and critics); can be a schedule.
-    :param buffer_size: Size of the replay buffer.
+    :param buffer_size: Transitions the replay buffer keeps, of each run in a pack.
     :param learning_starts: How many steps to collect transitions for before learning starts.
     :param batch_size: Minibatch size for each gradient update (one minibatch, the same indices, for all agents).
     :param tau: The soft update coefficient ("Polyak update", between 0 and 1).
     :param gamma: The discount factor.
     :param train_freq: Update the model every ``train_freq`` steps, or a tuple like ``(5, "step")``.
-    :param gradient_steps: How many gradient steps to do after each rollout (-1: as many as env steps).
+    :param gradient_steps: How many gradient steps to do after each rollout (-1: as many as env steps of one run).
     :param action_noise: The action noise (e.g. ``NormalActionNoise`` over the joint action dimension).
     :param replay_buffer_class: Replay buffer class; must derive from :class:`MultiAgentReplayBuffer`.
     :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation.
@@ -76,7 +77,8 @@ class MADDPG(TD3):
     :param centralized_critic: Whether each agent's critic sees all agents (MADDPG) or only its own agent's
         observation and action (independent DDPG learners).
     :param exploration: Count-based exploration: an :class:`~sb3_macb.MACB`, a dict of its arguments, or None.
-        For a pack, one of these for every run, or a list of one per run.
+        For a pack, one of these for every run, or a list of one per run; an MACB object that appears more than
+        once in the list is copied, so that every run has its own hash matrix and count table.
     :param stats_window_size: Window size for the rollout logging.
     :param tensorboard_log: The log location for tensorboard (if None, no logging).
     :param policy_kwargs: Additional arguments for the policy (``net_arch``, ``n_critics``, ...).
@@ -185,7 +187,11 @@ class MADDPG(TD3):
         self.share_parameters = [list(g) for g in share_parameters] if isinstance(share_parameters, (list, tuple)) else share_parameters
         self.share_critics = bool(share_critics)
         if isinstance(exploration, (list, tuple)):
-            per_run = list(exploration)
+            # the same MACB object given for several runs ([MACB(...)] * K) is copied: every run counts in its own table
+            per_run, seen = [], set()
+            for setting in exploration:
+                per_run.append(copy.deepcopy(setting) if isinstance(setting, MACB) and id(setting) in seen else setting)
+                seen.add(id(setting))
         else:  # one setting for every run: each run gets its own copy (and its own count table)
             per_run = [exploration] + [copy.deepcopy(exploration) for _ in range(n_runs - 1)]
         if len(per_run) != n_runs:
@@ -411,6 +417,8 @@ class MADDPG(TD3):
             super()._setup_model()
         finally:
             self.policy_kwargs, self.replay_buffer_kwargs = user_policy_kwargs, user_buffer_kwargs
+        if self.n_runs > 1 and self.train_freq.unit != TrainFrequencyUnit.STEP:
+            raise ValueError("train_freq: a pack counts it in steps ((N, 'step')); SB3 counts episodes over all envs")
 
         self._exploration_pack = _ExplorationPack(self.explorations)
         # Agent i's slice of the joint action, to put its actor's action into its own critic's input
@@ -503,6 +511,8 @@ class MADDPG(TD3):
         return th.as_tensor(draws, dtype=th.float32, device=self.device)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+        if self.gradient_steps < 0:  # SB3 passes the steps of all envs; each run of a pack does its own run's count
+            gradient_steps //= self.n_runs
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
         assert self._run_rngs is not None

@@ -37,7 +37,7 @@ from torch import nn
 import sb3_macb
 import sb3_macb.envs  # noqa: F401  (registers the task ids)
 from sb3_macb.callbacks import MultiAgentEvalCallback, _SuccessRateStop, make_eval_vec_env
-from sb3_macb.common.atomic import atomic_write
+from sb3_macb.common.atomic import AtomicWriteError, atomic_write, remove_leftovers
 from sb3_macb.common.snapshot import restore, snapshot
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.maddpg import MADDPG
@@ -53,8 +53,16 @@ PACKABLE = ("exploration", "noise_std")
 UNSUPPORTED = ("normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "normalize_kwargs", "monitor_kwargs")
 # Hyperparameter strings rl_zoo3 evaluates as Python (parsed here by :func:`safe_eval`, or by ``eval`` when asked)
 EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
-# Modules whose classes a YAML ``callback:`` entry may name without ``unsafe_eval``
-SAFE_MODULES = ("sb3_macb.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.", "gymnasium.wrappers.", "supersuit.")
+# The callback classes a YAML ``callback:`` entry may name without ``unsafe_eval`` (exact names), each with the
+# keyword arguments that name a folder to write to: those must be relative and stay inside the run's folder
+SAFE_CALLBACKS: dict[str, tuple[str, ...]] = {
+    "sb3_macb.callbacks.StopTrainingOnSuccessRate": (),
+    "sb3_macb.callbacks.StopTrainingOnNoSuccessImprovement": (),
+    "stable_baselines3.common.callbacks.StopTrainingOnMaxEpisodes": (),
+    "stable_baselines3.common.callbacks.ProgressBarCallback": (),
+    "stable_baselines3.common.callbacks.CheckpointCallback": ("save_path",),
+    "rl_zoo3.callbacks.RawStatisticsCallback": (),
+}
 UNSAFE_HINT = "pass --unsafe-eval to evaluate hyperparameter strings as Python (only for files you trust)"
 
 
@@ -129,15 +137,23 @@ def load_hyperparams(
 
     conf_file = conf_file or DEFAULT_CONFIG
     try:
-        with open(conf_file) as file:
-            config = yaml.safe_load(file) or {}
+        with open(conf_file, "rb") as file:
+            config = yaml.safe_load(file.read().decode("utf-8")) or {}
     except OSError as exc:
         raise ExperimentError(f"cannot read the hyperparameter file {conf_file}: {exc.strerror}") from None
+    except (UnicodeDecodeError, yaml.YAMLError) as exc:
+        where = getattr(exc, "problem_mark", None)
+        line = f" (line {where.line + 1})" if where is not None else ""
+        raise ExperimentError(f"the hyperparameter file {conf_file} is not valid YAML{line}: {type(exc).__name__}") from None
+    if not isinstance(config, dict):
+        raise ExperimentError(f"the hyperparameter file {conf_file} is not a YAML mapping of env ids to hyperparameters")
     if env_id not in config:
         envs = sorted(k for k in config if k != "variants")
         raise ExperimentError(f"{conf_file} has no entry for env '{env_id}'; it has {envs}")
     hyperparams = deepcopy(config[env_id])
     known = config.get("variants") or {}
+    if not isinstance(hyperparams, dict) or not isinstance(known, dict) or not all(isinstance(v, dict) for v in known.values()):
+        raise ExperimentError(f"{conf_file}: the entry of '{env_id}' and each variant must be a mapping of hyperparameters")
     for name in variants:
         if name not in known:
             raise ExperimentError(f"Unknown variant '{name}' in {conf_file}; known variants: {sorted(known)}")
@@ -184,7 +200,7 @@ def evaluate_string(text: str, where: str, unsafe_eval: bool = False) -> Any:
         raise ExperimentError(f"{where}: evaluating {text!r} failed: {type(exc).__name__}: {exc}") from None
 
 
-def _callback_entries(value: Any) -> list[tuple[str, dict[str, Any]]]:
+def callback_entries(value: Any) -> list[tuple[str, dict[str, Any]]]:
     """The (dotted class name, kwargs) pairs of a YAML ``callback:`` entry (a name, a {name: kwargs} dict, or a list)."""
     if value is None:
         return []
@@ -193,27 +209,33 @@ def _callback_entries(value: Any) -> list[tuple[str, dict[str, Any]]]:
     if isinstance(value, dict):
         return [(str(name), dict(kwargs or {})) for name, kwargs in value.items()]
     if isinstance(value, list):
-        return [entry for item in value for entry in _callback_entries(item)]
+        return [entry for item in value for entry in callback_entries(item)]
     raise ExperimentError(f"'callback' must be a class name, a {{name: kwargs}} dict or a list of them, got {value!r}")
 
 
-def make_callbacks(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> list[BaseCallback]:
+def make_callbacks(hyperparams: dict[str, Any], unsafe_eval: bool = False, folder: str | None = None) -> list[BaseCallback]:
     """
-    The callbacks a run's ``callback:`` hyperparameter names (rl_zoo3's format), built. Classes outside
-    :data:`SAFE_MODULES` are refused unless ``unsafe_eval``; the error names the key and says how to opt in.
+    The callbacks a run's ``callback:`` hyperparameter names (rl_zoo3's format), built. Only the classes of
+    :data:`SAFE_CALLBACKS` are allowed unless ``unsafe_eval``, and the folders they write to are relative paths
+    inside the run's ``folder``; anything else is refused with an error that names the key and what is allowed.
 
     :param hyperparams: The run's hyperparameters.
-    :param unsafe_eval: Allow classes from any module.
+    :param unsafe_eval: Allow any class, with its arguments as given.
+    :param folder: The run's folder, which the callbacks' relative paths are joined to (None: only checked).
     """
     import importlib
 
     callbacks = []
-    for name, kwargs in _callback_entries(hyperparams.get("callback")):
-        if not unsafe_eval and not name.startswith(SAFE_MODULES):
-            raise ExperimentError(
-                f"'callback' names {name!r}, outside the trusted libraries {list(SAFE_MODULES)}: building it would "
-                f"import and call it. {UNSAFE_HINT}"
-            )
+    for name, kwargs in callback_entries(hyperparams.get("callback")):
+        if not unsafe_eval:
+            if name not in SAFE_CALLBACKS:
+                raise ExperimentError(
+                    f"'callback' names {name!r}, which is not one of the allowed callbacks {sorted(SAFE_CALLBACKS)}: "
+                    f"building it would import and call it. {UNSAFE_HINT}"
+                )
+            for key in SAFE_CALLBACKS[name]:
+                if key in kwargs:
+                    kwargs[key] = _inside_run_folder(kwargs[key], f"'callback' {name} {key}", folder)
         module_name, _, class_name = name.rpartition(".")
         try:
             cls = getattr(importlib.import_module(module_name), class_name)
@@ -228,6 +250,83 @@ def make_callbacks(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> li
     return callbacks
 
 
+def _inside_run_folder(value: Any, where: str, folder: str | None) -> str:
+    """``value`` (a relative path that stays inside the run's folder) joined to ``folder``."""
+    if not isinstance(value, str) or not value or os.path.isabs(value) or os.path.normpath(value).split(os.sep)[0] == os.pardir:
+        raise ExperimentError(f"{where} must be a relative path inside the run's folder, got {value!r}")
+    return os.path.join(folder or ".", value)
+
+
+def check_values(hyperparams: dict[str, Any], where: str) -> None:
+    """
+    Refuse hyperparameter values that cannot make a sensible run (``gamma: 2``, ``batch_size: 0``, ...) with one
+    line naming the key and what is allowed. Values given as strings to be evaluated are checked when built.
+
+    :param hyperparams: A run's hyperparameters.
+    :param where: Where they come from, for the message.
+    """
+
+    def number(key: str, low: float, high: float | None = None, integer: bool = False, low_open: bool = False,
+               allowed: str = "") -> None:  # fmt: skip
+        if key not in hyperparams or hyperparams[key] is None:
+            return
+        value = hyperparams[key]
+        kind = (int, np.integer) if integer else (int, float, np.integer, np.floating)
+        ok = isinstance(value, kind) and not isinstance(value, bool) and np.isfinite(value)
+        ok = ok and (value > low if low_open else value >= low) and (high is None or value <= high)
+        if not ok:
+            raise ExperimentError(f"{where}: '{key}' must be {allowed}, got {value!r}")
+
+    number("gamma", 0.0, 1.0, low_open=True, allowed="a number in (0, 1]")
+    number("tau", 0.0, 1.0, allowed="a number in [0, 1]")
+    number("batch_size", 1, integer=True, allowed="an integer >= 1")
+    number("buffer_size", 1, integer=True, allowed="an integer >= 1")
+    number("learning_starts", 0, integer=True, allowed="an integer >= 0")
+    number("n_envs", 1, integer=True, allowed="an integer >= 1")
+    number("policy_delay", 1, integer=True, allowed="an integer >= 1")
+    number("gradient_steps", -1, integer=True, allowed="an integer >= -1 (-1: as many as steps)")
+    number("noise_std", 0.0, allowed="a number >= 0")
+    number("target_policy_noise", 0.0, allowed="a number >= 0")
+    number("target_noise_clip", 0.0, allowed="a number >= 0")
+    number("n_timesteps", 1, allowed="a number >= 1")
+    if not isinstance(hyperparams.get("learning_rate", 1e-3), str):
+        number("learning_rate", 0.0, low_open=True, allowed="a number > 0 or 'lin_<number>'")
+    train_freq = hyperparams.get("train_freq", 1)
+    steps = train_freq[0] if isinstance(train_freq, (list, tuple)) and len(train_freq) == 2 else train_freq
+    unit = train_freq[1] if isinstance(train_freq, (list, tuple)) and len(train_freq) == 2 else "step"
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1 or unit not in ("step", "episode"):
+        raise ExperimentError(f"{where}: 'train_freq' must be an integer >= 1 or [N, 'step' | 'episode'], got {train_freq!r}")
+    if hyperparams.get("policy", "MlpPolicy") != "MlpPolicy":
+        raise ExperimentError(f"{where}: 'policy' must be 'MlpPolicy' (MADDPG's only policy), got {hyperparams['policy']!r}")
+    if hyperparams.get("noise_type") not in (None, "normal", "ornstein-uhlenbeck"):
+        raise ExperimentError(f"{where}: 'noise_type' must be 'normal', 'ornstein-uhlenbeck' or null, got {hyperparams['noise_type']!r}")
+    device = hyperparams.get("device", "auto")
+    if device != "auto":
+        try:
+            th.device(device)
+        except (RuntimeError, TypeError):
+            raise ExperimentError(f"{where}: 'device' must be 'auto' or a torch device such as 'cpu' or 'cuda', got {device!r}") from None
+    exploration = hyperparams.get("exploration")
+    if exploration is not None:
+        from sb3_macb.exploration.macb import MACB
+
+        try:
+            MACB.from_config(exploration)
+        except (TypeError, ValueError) as exc:
+            raise ExperimentError(f"{where}: 'exploration': {exc}") from None
+
+
+def unsupported_keys(hyperparams: dict[str, Any]) -> list[str]:
+    """The :data:`UNSUPPORTED` keys that ``hyperparams`` uses (``normalize: false``, ``frame_stack: 1`` and empty
+    wrappers change nothing and are not counted)."""
+
+    def used(key: str) -> bool:
+        value = hyperparams.get(key)
+        return not (value is None or value is False or value == {} or value == [] or (key == "frame_stack" and type(value) is int and value == 1))
+
+    return [key for key in UNSUPPORTED if used(key)]
+
+
 def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict[str, Any]:
     """
     MADDPG's keyword arguments from a run's hyperparameters (strings parsed safely, zoo keys removed).
@@ -235,11 +334,7 @@ def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict
     :param hyperparams: The run's hyperparameters.
     :param unsafe_eval: Evaluate strings as Python, as rl_zoo3 does.
     """
-    def used(key: str) -> bool:  # normalize: false, frame_stack: 1 and empty wrappers change nothing
-        value = hyperparams.get(key)
-        return not (value is None or value is False or value == {} or value == [] or (key == "frame_stack" and type(value) is int and value == 1))
-
-    bad = [key for key in UNSUPPORTED if used(key)]
+    bad = unsupported_keys(hyperparams)
     if bad:
         raise ExperimentError(
             f"{bad}: rl_zoo3 options that sb3_macb's runs do not support (they wrap the env in ways a checkpoint cannot "
@@ -259,7 +354,22 @@ def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict
                 kwargs[key] = evaluate_string(value, f"hyperparameter '{key}'", unsafe_eval)
     if isinstance(kwargs.get("train_freq"), list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
+    policy_kwargs = kwargs.get("policy_kwargs")
+    if policy_kwargs is not None and not isinstance(policy_kwargs, dict):
+        raise ExperimentError(f"hyperparameter 'policy_kwargs' must be a dict, got {policy_kwargs!r}")
+    if policy_kwargs and "net_arch" in policy_kwargs:
+        _check_net_arch(policy_kwargs["net_arch"])
     return kwargs
+
+
+def _check_net_arch(net_arch: Any) -> None:
+    def layers(value: Any) -> bool:
+        return isinstance(value, (list, tuple)) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in value)
+
+    if not (layers(net_arch) or (isinstance(net_arch, dict) and set(net_arch) <= {"pi", "qf"} and all(map(layers, net_arch.values())))):
+        raise ExperimentError(
+            f"policy_kwargs 'net_arch' must be a list of layer sizes (integers >= 1) or dict(pi=[...], qf=[...]), got {net_arch!r}"
+        )
 
 
 # --- the experiment --------------------------------------------------------------------------------------------------
@@ -326,6 +436,7 @@ class ExperimentConfig:
         if self.n_timesteps < 1 or self.eval_freq < 0 or self.eval_episodes < 1:
             raise ExperimentError("n_timesteps and eval_episodes must be >= 1 and eval_freq >= 0")
         for run in self.runs:  # bad settings are refused here, before anything is written or run
+            check_values({**run.hyperparams, "n_timesteps": self.n_timesteps}, f"seed {run.seed} {run.variants}")
             model_kwargs(run.hyperparams, self.unsafe_eval)
             make_callbacks(run.hyperparams, self.unsafe_eval)
         if len(self.runs) > 1:
@@ -343,12 +454,39 @@ class ExperimentConfig:
                     )
 
     def comparable(self) -> dict[str, Any]:
-        """The settings that must not change on resume (everything but the command line)."""
-        data = json.loads(json.dumps(asdict(self), default=repr))
-        data.pop("command")
-        if not data["unsafe_eval"]:
-            data.pop("unsafe_eval")  # as checkpoints written before the option existed have it
-        return data
+        """The settings that must not change on resume (everything but the command line and the folders)."""
+        return comparable_settings(asdict(self))
+
+
+def comparable_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """
+    The settings of an :class:`ExperimentConfig` (as a dict, e.g. read from ``experiment.json``) that must not change
+    on resume: everything but the command line and where the folders are (a folder may be moved or copied).
+    """
+    data = json.loads(json.dumps(config, default=repr))
+    data.pop("command", None)
+    if not data.get("unsafe_eval"):
+        data.pop("unsafe_eval", None)  # as checkpoints written before the option existed have it
+    for run in data.get("runs", []):
+        if isinstance(run, dict):
+            run.pop("folder", None)
+    return data
+
+
+def settings_diff(old: Any, new: Any, where: str = "") -> list[str]:
+    """
+    The differences between two settings trees as ``key: old -> new`` lines, keys dotted (``runs[0].seed``).
+
+    :param old: The recorded settings.
+    :param new: The settings given now.
+    :param where: The key of ``old`` and ``new`` (for the recursion).
+    """
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [line for key in sorted(set(old) | set(new), key=str)
+                for line in settings_diff(old.get(key, "(absent)"), new.get(key, "(absent)"), f"{where}.{key}" if where else str(key))]  # fmt: skip
+    if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
+        return [line for i, (a, b) in enumerate(zip(old, new)) for line in settings_diff(a, b, f"{where}[{i}]")]
+    return [] if old == new else [f"{where}: {old!r} -> {new!r}"]
 
 
 def _pack_key(hyperparams: dict[str, Any]) -> str:
@@ -399,8 +537,11 @@ class Experiment:
                  save_best: bool = False, keep_models: bool = False):  # fmt: skip
         if checkpoint_freq is not None and checkpoint_freq < 1:
             raise ExperimentError(f"checkpoint_freq must be >= 1 step, got {checkpoint_freq}")
+        # absolute folders: what a run writes does not depend on the working directory of a later resume
+        self.folder = os.path.abspath(folder)
+        for run in config.runs:
+            run.folder = os.path.abspath(run.folder)
         self.config = config
-        self.folder = folder
         self.checkpoint_freq = checkpoint_freq
         self.keep_checkpoint = keep_checkpoint
         self.keep_models = keep_models
@@ -431,10 +572,48 @@ class Experiment:
         path = os.path.join(self.folder, EXPERIMENT_FILE)
         if not os.path.isfile(path):
             return "new"
-        with open(path) as file:
-            if json.load(file).get("done"):
-                return "done"
-        return "checkpointed" if os.path.isfile(os.path.join(self.checkpoint_root, "LATEST")) else "started"
+        try:
+            with open(path, "rb") as file:
+                saved = json.loads(file.read().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ExperimentError(f"{path} is not a readable experiment file ({type(exc).__name__}: {exc})") from None
+        if isinstance(saved, dict) and saved.get("done"):
+            return "done"
+        return "checkpointed" if self._latest_checkpoint() is not None else "started"
+
+    def _latest_checkpoint(self) -> str | None:
+        """
+        The name of the checkpoint to resume from: the one ``checkpoint/LATEST`` names, or, when LATEST is missing
+        (a kill between writing a checkpoint and pointing to it), the newest complete ``step_N`` folder. None: none.
+        A LATEST that cannot be read or names no complete checkpoint is an error naming it.
+        """
+        root = self.checkpoint_root
+        latest = os.path.join(root, "LATEST")
+        if os.path.exists(latest):
+            try:
+                with open(latest, "rb") as file:
+                    name = file.read().decode("utf-8").strip()
+            except (OSError, UnicodeDecodeError) as exc:
+                raise ExperimentError(f"{latest} is damaged ({type(exc).__name__}): it should hold a name like step_20000") from None
+            if not (name.startswith("step_") and name[5:].isdigit()):
+                raise ExperimentError(f"{latest} is damaged: it holds {name[:40]!r}, not a name like step_20000")
+            if not self._complete(os.path.join(root, name)):
+                raise ExperimentError(f"{latest} names {name}, but {os.path.join(root, name)} is missing or incomplete")
+            return name
+        try:
+            names = [e for e in os.listdir(root) if e.startswith("step_") and e[5:].isdigit() and self._complete(os.path.join(root, e))]
+        except (FileNotFoundError, NotADirectoryError):
+            return None
+        return max(names, key=lambda e: int(e[5:])) if names else None
+
+    @staticmethod
+    def _complete(checkpoint: str) -> bool:
+        return all(os.path.isfile(os.path.join(checkpoint, f)) for f in ("model.zip", "buffer.npz", "state.pkl"))
+
+    def _remove_leftovers(self) -> None:
+        """Temporary files a killed process left in the experiment's folders (see :func:`remove_leftovers`)."""
+        for folder in {self.folder, self.checkpoint_root, os.path.join(self.folder, MODELS_DIR), *(r.folder for r in self.config.runs)}:
+            remove_leftovers(folder)
 
     # --- building --------------------------------------------------------------------------------------------------
 
@@ -466,9 +645,19 @@ class Experiment:
         )
         return model, self._eval_callback(make_eval_vec_env(cfg.env_id, cfg.eval_episodes, [r.seed for r in runs], cfg.env_kwargs))
 
+    def _build_checked(self) -> tuple[MADDPG, MultiAgentEvalCallback]:
+        """:meth:`_build`, with a setting that MADDPG, the env or the callback refuses reported in one line."""
+        try:
+            return self._build()
+        except ExperimentError:
+            raise
+        except (ValueError, TypeError, KeyError, RuntimeError, AssertionError) as exc:
+            message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ExperimentError(f"the settings cannot build this run ({type(exc).__name__}): {message}") from None
+
     def _eval_callback(self, eval_env: Any) -> MultiAgentEvalCallback:
         # early-stopping rules from the YAML's callback: list run after each evaluation; other callbacks every step
-        self.user_callbacks = make_callbacks(self.config.runs[0].hyperparams, self.config.unsafe_eval)
+        self.user_callbacks = make_callbacks(self.config.runs[0].hyperparams, self.config.unsafe_eval, self.config.runs[0].folder)
         stoppers = [c for c in self.user_callbacks if isinstance(c, _SuccessRateStop)]
         self.user_callbacks = [c for c in self.user_callbacks if c not in stoppers]
         after_eval = None if not stoppers else stoppers[0] if len(stoppers) == 1 else CallbackList(stoppers)
@@ -506,9 +695,10 @@ class Experiment:
                 return [r.folder for r in self.config.runs]
             if status == "started":
                 raise ExperimentError(
-                    f"{self.checkpoint_root}/LATEST does not exist: the experiment in {self.folder} stopped before its "
-                    f"first checkpoint. Start it again without --resume (in a new folder, or after deleting this one)."
+                    f"{self.checkpoint_root} holds no complete checkpoint: the experiment in {self.folder} stopped before "
+                    f"its first checkpoint. Start it again without --resume (in a new folder, or after deleting this one)."
                 )
+            self._remove_leftovers()
             model, callback = self._load_checkpoint()
         else:
             if status != "new":
@@ -516,8 +706,9 @@ class Experiment:
                     f"{os.path.join(self.folder, EXPERIMENT_FILE)} exists: {self.folder} already holds an experiment "
                     f"({status}). Resume it with --resume, or choose another folder."
                 )
+            model, callback = self._build_checked()  # a setting that cannot build a run leaves no folder behind
+            self._remove_leftovers()
             self._write_experiment_file(done=False)
-            model, callback = self._build()
         self.model, self.eval_callback = model, callback
         self._started = time.time()
         total = self.config.n_timesteps * self.n_runs
@@ -541,12 +732,14 @@ class Experiment:
         assert self.model is not None and self.eval_callback is not None
         self.eval_callback.save_evaluations()
         wall = self._elapsed_before + time.time() - self._started
+        buffer_size_per_run = int(self.model.replay_buffer.buffer_size_per_run)  # type: ignore[attr-defined]
         for k, run in enumerate(self.config.runs):
             solo = self.model if self.n_runs == 1 else self.model.get_run(k)
             solo.save(os.path.join(run.folder, "model.zip"))
             with atomic_write(os.path.join(run.folder, "config.yml")) as file:
                 file.write(yaml.safe_dump({"env_id": self.config.env_id, "seed": run.seed, "variants": run.variants,
-                                           **run.hyperparams, "n_timesteps": self.config.n_timesteps}).encode())  # fmt: skip
+                                           **run.hyperparams, "n_timesteps": self.config.n_timesteps,
+                                           "buffer_size_per_run": buffer_size_per_run}).encode())  # fmt: skip
             info = {
                 "command": self.config.command,
                 "wall_time_s": round(wall, 1),
@@ -554,6 +747,7 @@ class Experiment:
                 "variants": run.variants,
                 "seed": run.seed,
                 "pack_size": self.n_runs,
+                "buffer_size_per_run": buffer_size_per_run,
                 "complete": True,
                 "stopped_early": self.stopped_early,
                 "timesteps_run": int(self.model.num_timesteps // self.n_runs),
@@ -568,7 +762,11 @@ class Experiment:
             print(f"{self.folder}: finished {self.n_runs} run(s) of {self.config.n_timesteps} steps in {wall:.0f} s")
 
     def _write_experiment_file(self, done: bool) -> None:
-        data = {"sb3_macb": sb3_macb.__version__, "done": done, "config": asdict(self.config)}
+        # run folders relative to the experiment's, so that a moved or copied folder resumes into itself
+        config = asdict(self.config)
+        for run in config["runs"]:
+            run["folder"] = os.path.relpath(run["folder"], self.folder)
+        data = {"sb3_macb": sb3_macb.__version__, "done": done, "folder": self.folder, "config": config}
         with atomic_write(os.path.join(self.folder, EXPERIMENT_FILE)) as file:
             file.write(json.dumps(data, indent=1, default=repr).encode())
 
@@ -576,21 +774,11 @@ class Experiment:
         path = os.path.join(self.folder, EXPERIMENT_FILE)
         if not os.path.isfile(path):
             raise ExperimentError(f"{path} does not exist: {self.folder} holds no experiment to resume")
-        try:
-            with open(path) as file:
-                saved = json.load(file)
-            saved_config = ExperimentConfig(**{**saved["config"], "runs": saved["config"]["runs"]})
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise ExperimentError(f"{path} is not a readable experiment file ({exc})") from None
-        if saved.get("sb3_macb") != sb3_macb.__version__:
-            raise ExperimentError(
-                f"{path} was written by sb3_macb {saved.get('sb3_macb')}; this is {sb3_macb.__version__}. A checkpoint "
-                f"continues only with the version that wrote it (random streams and formats may differ)."
-            )
-        mine, theirs = self.config.comparable(), saved_config.comparable()
+        saved = read_experiment_file(path)
+        mine, theirs = self.config.comparable(), comparable_settings(saved["config"])
         if mine != theirs:
-            diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
-            raise ExperimentError(f"The settings differ from those in {path} in {diff}: resume with the same command")
+            diff = settings_diff(theirs, mine)
+            raise ExperimentError(f"The settings differ from those in {path}: {'; '.join(diff)}. Resume with the same command")
 
     # --- checkpoints -------------------------------------------------------------------------------------------------
 
@@ -605,6 +793,19 @@ class Experiment:
         name = f"step_{steps}"
         root = self.checkpoint_root
         tmp = os.path.join(root, f".{name}.tmp")
+        try:
+            return self._write_checkpoint(name, tmp, steps)
+        except OSError as exc:  # e.g. a full disk: the previous checkpoint stays what LATEST names
+            shutil.rmtree(tmp, ignore_errors=True)
+            where = exc.filename if isinstance(exc, AtomicWriteError) else tmp
+            detail = exc.strerror if isinstance(exc, AtomicWriteError) else (exc.strerror or str(exc))
+            raise ExperimentError(f"writing the checkpoint at step {steps} failed ({where}: {detail}); the previous "
+                                  f"checkpoint is kept") from None  # fmt: skip
+
+    def _write_checkpoint(self, name: str, tmp: str, steps: int) -> str:
+        assert self.model is not None and self.eval_callback is not None
+        model, callback = self.model, self.eval_callback
+        root = self.checkpoint_root
         shutil.rmtree(tmp, ignore_errors=True)
         os.makedirs(tmp)
         model.save(os.path.join(tmp, "model.zip"))
@@ -643,12 +844,9 @@ class Experiment:
 
     def _load_checkpoint(self) -> tuple[MADDPG, MultiAgentEvalCallback]:
         root = self.checkpoint_root
-        latest = os.path.join(root, "LATEST")
-        try:
-            with open(latest) as file:
-                name = file.read().strip()
-        except OSError:
-            raise ExperimentError(f"{latest} cannot be read: no checkpoint to resume from") from None
+        name = self._latest_checkpoint()
+        if name is None:
+            raise ExperimentError(f"{root} holds no complete checkpoint to resume from")
         # on the device a fresh start would use: a run started on a GPU continues on it
         device = self.config.runs[0].hyperparams.get("device", "auto")
         model, state = load_checkpoint(os.path.join(root, name), config=self.config.comparable(),
@@ -675,7 +873,8 @@ def load_checkpoint(
     (steps, elapsed time, evaluation callback state, env snapshots, random states). The global random states are not
     touched: call :func:`restore_global_rngs` when everything that precedes the resumed steps has been built.
 
-    Checkpoints hold pickles: load only those your own runs wrote.
+    Checkpoints hold pickles (state.pkl, and model.zip as SB3's zips do): loading one runs code that it names, so
+    load only those your own runs wrote.
 
     :param folder: A checkpoint folder (``checkpoint/step_N`` of an experiment).
     :param config: The experiment's comparable settings, which the checkpoint must match (None: not checked).
@@ -690,6 +889,9 @@ def load_checkpoint(
             state = pickle.load(file)
     except Exception as exc:  # noqa: BLE001 (any unpickling failure means a damaged file)
         raise ExperimentError(f"{state_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
+    needed = ("sb3_macb", "config", "steps", "elapsed", "train_env", "eval_env", "callback", "rng")
+    if not isinstance(state, dict) or any(key not in state for key in needed):
+        raise ExperimentError(f"{state_file} is damaged: it is not a checkpoint state (a dict with {list(needed)})")
     if state.get("sb3_macb") != sb3_macb.__version__ and not allow_other_version:
         raise ExperimentError(f"{state_file} was written by sb3_macb {state.get('sb3_macb')}, this is {sb3_macb.__version__}")
     if config is not None and state.get("config") != config:
@@ -773,16 +975,72 @@ def run_experiment(
     return log_folder
 
 
-def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: int = 1, keep_models: bool = False) -> Experiment:
-    """The experiment stored in ``folder`` (its ``experiment.json``), to resume (the arguments as :class:`Experiment`'s)."""
-    path = os.path.join(folder, EXPERIMENT_FILE)
+def read_experiment_file(path: str) -> dict[str, Any]:
+    """
+    ``experiment.json`` read and checked: a JSON object written by this sb3_macb version, with a ``config`` mapping.
+    Anything else is an :class:`ExperimentError` naming the file.
+
+    :param path: The file.
+    """
     try:
-        with open(path) as file:
-            saved = json.load(file)
-        config = ExperimentConfig(**saved["config"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ExperimentError(f"{path} is missing or not a readable experiment file ({exc})") from None
-    return Experiment(config, folder, checkpoint_freq=checkpoint_freq, verbose=verbose, keep_models=keep_models)
+        with open(path, "rb") as file:
+            saved = json.loads(file.read().decode("utf-8"))
+    except FileNotFoundError:
+        raise ExperimentError(f"{path} does not exist: {os.path.dirname(path) or '.'} holds no experiment to resume") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ExperimentError(f"{path} is not a readable experiment file ({type(exc).__name__}: {exc})") from None
+    if not isinstance(saved, dict) or not isinstance(saved.get("config"), dict) or not isinstance(saved["config"].get("runs"), list):
+        raise ExperimentError(f"{path} is not an experiment file (no 'config' with 'runs')")
+    if saved.get("sb3_macb") != sb3_macb.__version__:
+        raise ExperimentError(
+            f"{path} was written by sb3_macb {saved.get('sb3_macb')}; this is {sb3_macb.__version__}. A checkpoint "
+            f"continues only with the version that wrote it (random streams and formats may differ)."
+        )
+    return saved
+
+
+def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: int = 1, keep_models: bool = False,
+                    unsafe_eval: bool = False) -> Experiment:  # fmt: skip
+    """
+    The experiment stored in ``folder`` (its ``experiment.json``), to resume (the other arguments as
+    :class:`Experiment`'s). Its runs' folders are found relative to ``folder`` wherever it now is; a folder that was
+    moved or copied resumes only runs that lie inside it (so that it never writes into the original's runs).
+
+    :param folder: The experiment's folder.
+    :param unsafe_eval: Evaluate the hyperparameter strings as Python; never taken from the file: an experiment
+        started with ``--unsafe-eval`` needs it again.
+    """
+    path = os.path.join(folder, EXPERIMENT_FILE)
+    saved = read_experiment_file(path)
+    config = dict(saved["config"])
+    if config.get("unsafe_eval") and not unsafe_eval:
+        raise ExperimentError(
+            f"{path} was started with --unsafe-eval: resuming it evaluates its hyperparameter strings as Python. "
+            f"Pass --unsafe-eval again if you trust this folder"
+        )
+    config["unsafe_eval"] = bool(unsafe_eval)
+    here = os.path.abspath(folder)
+    moved = "folder" in saved and os.path.realpath(str(saved["folder"])) != os.path.realpath(here)
+    runs = []
+    for run in config["runs"]:
+        if not isinstance(run, dict) or not isinstance(run.get("folder"), str):
+            raise ExperimentError(f"{path}: every run needs a 'folder' (a string)")
+        relative = run["folder"]
+        if os.path.isabs(relative) or "folder" not in saved:
+            raise ExperimentError(f"{path} records run folders in an older layout; resume it with the version that wrote it")
+        target = os.path.normpath(os.path.join(here, relative))
+        if moved and (relative == os.pardir or relative.startswith(os.pardir + os.sep)):
+            raise ExperimentError(
+                f"{folder} was moved or copied from {saved['folder']}, and its run {relative} lies outside it: resuming "
+                f"here would write into {target}. Resume it where it was, or start it again"
+            )
+        runs.append({**run, "folder": target})
+    config["runs"] = runs
+    try:
+        experiment_config = ExperimentConfig(**config)
+    except TypeError as exc:
+        raise ExperimentError(f"{path} is not a readable experiment file ({exc})") from None
+    return Experiment(experiment_config, folder, checkpoint_freq=checkpoint_freq, verbose=verbose, keep_models=keep_models)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -791,10 +1049,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--checkpoint-freq", type=int, default=None, help="steps per run between checkpoints")
     parser.add_argument("--keep-models", action="store_true", help="keep every checkpoint's model in FOLDER/models/")
     parser.add_argument("--num-threads", type=int, default=1)
+    parser.add_argument("--unsafe-eval", action="store_true",
+                        help="evaluate the experiment's hyperparameter strings as Python (needed again for an experiment "
+                        "started with it; only for folders you trust)")  # fmt: skip
     args = parser.parse_args(argv)
-    th.set_num_threads(args.num_threads)
     try:
-        load_experiment(args.resume, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models).run(resume=True)
+        if args.num_threads < 1:
+            raise ExperimentError(f"--num-threads must be >= 1, got {args.num_threads}")
+        if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
+            raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
+        th.set_num_threads(args.num_threads)
+        load_experiment(args.resume, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models,
+                        unsafe_eval=args.unsafe_eval).run(resume=True)  # fmt: skip
     except ExperimentError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

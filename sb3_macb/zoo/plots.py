@@ -244,6 +244,9 @@ def main(argv: list[str] | None = None) -> None:
     simhash.add_argument("--points", type=int, default=2000)
     simhash.add_argument("-o", "--output", default="simhash.png")
     args = parser.parse_args(argv)
+    for path in [*getattr(args, "groups", []), *([args.results] if args.what == "table" else [])]:
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"sb3-macb plot {args.what}: {path} does not exist")
     if args.what == "curves":
         plot_curves(args.groups, args.output, args.smooth, args.confidence, args.reference, args.complete_only)
     elif args.what == "collisions":

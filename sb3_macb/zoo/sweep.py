@@ -59,8 +59,7 @@ CONFIG_KEYS = {
 
 def load_config(path: str) -> dict[str, Any]:
     """Read and check a sweep config (unknown keys and missing ones are errors that name them)."""
-    with open(path) as file:
-        config = yaml.safe_load(file) or {}
+    config = _read_yaml_mapping(path, "sweep config")
     if not isinstance(config, dict):
         raise ValueError(f"{path}: a sweep config is a mapping of keys {sorted(CONFIG_KEYS)}")
     unknown = sorted(set(config) - CONFIG_KEYS)
@@ -78,12 +77,32 @@ def load_config(path: str) -> dict[str, Any]:
         raise ValueError(f"{path}: give seeds under 'seeds', not in the grid")
     if not isinstance(config["seeds"], list) or not config["seeds"]:
         raise ValueError(f"{path}: seeds is a non-empty list of integers")
+    conf_file = config.get("conf_file")
+    if conf_file is not None:
+        if not isinstance(conf_file, str) or not conf_file.endswith((".yml", ".yaml")):
+            raise ValueError(f"{path}: conf_file must be the path of a .yml/.yaml hyperparameter file, got {conf_file!r}")
+        _read_yaml_mapping(conf_file, "conf_file")
     from sb3_macb.zoo.train import MODEL_KEYS, ZOO_KEYS
 
     for name in grid:
         if name.split(".")[0] not in ZOO_KEYS | MODEL_KEYS:
             raise ValueError(f"{path}: grid parameter '{name}' is not a hyperparameter of MADDPG or rl_zoo3")
     return config
+
+
+def _read_yaml_mapping(path: str, what: str) -> dict[str, Any]:
+    """A YAML file holding a mapping; anything else is a ValueError naming ``path`` (not its contents)."""
+    try:
+        with open(path, "rb") as file:
+            data = yaml.safe_load(file.read().decode("utf-8"))
+    except OSError as exc:
+        raise ValueError(f"cannot read the {what} {path}: {exc.strerror}") from None
+    except (UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ValueError(f"the {what} {path} is not valid YAML ({type(exc).__name__})") from None
+    data = {} if data is None else data
+    if not isinstance(data, dict):
+        raise ValueError(f"the {what} {path} is not a YAML mapping (of keys to settings)")
+    return data
 
 
 def grid_points(config: dict[str, Any]) -> list[dict[str, Any]]:

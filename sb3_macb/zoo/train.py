@@ -118,7 +118,7 @@ def make_parser() -> argparse.ArgumentParser:
     add("--env", required=True, help="gymnasium env id (e.g. sb3_macb/CommunicativeNavigation-v0)")
     add("--algo", default="maddpg", choices=["maddpg"], help="algorithm (rl_zoo3's option; only maddpg)")
     add("--seed", type=int, default=-1, help="random seed (default: a random one, printed and recorded)")
-    add("-n", "--n-timesteps", type=int, default=-1, help="environment steps (default: the YAML's n_timesteps)")
+    add("-n", "--n-timesteps", type=int, default=None, help="environment steps (default: the YAML's n_timesteps)")
     add("-f", "--log-folder", default="logs", help="runs go to LOG_FOLDER/maddpg/ENV_N")
     add("-conf", "--conf-file", "-c", "--conf", dest="conf_file", default=None,
         help="YAML hyperparameter file (default: the package's zoo/hyperparams/maddpg.yml)")  # fmt: skip
@@ -173,6 +173,46 @@ def _pairs(items: list[str], what: str, unsafe_eval: bool) -> dict[str, Any]:
     return result
 
 
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Refuse command-line values that cannot make a run, in one line naming the option (before anything is made)."""
+    import torch as th
+
+    from sb3_macb.zoo.experiment import ExperimentError
+
+    if args.n_timesteps is not None and args.n_timesteps < 1:
+        raise ExperimentError(f"-n/--n-timesteps must be >= 1 step, got {args.n_timesteps}")
+    if args.num_threads < 1:
+        raise ExperimentError(f"--num-threads must be >= 1, got {args.num_threads}")
+    if args.eval_freq < 0 or args.eval_episodes < 1:
+        raise ExperimentError(f"--eval-freq must be >= 0 and --eval-episodes >= 1, got {args.eval_freq} and {args.eval_episodes}")
+    if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
+        raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
+    if args.device != "auto":
+        try:
+            th.device(args.device)
+        except (RuntimeError, TypeError):
+            raise ExperimentError(f"--device must be auto, cpu, cuda or cuda:N, got {args.device!r}") from None
+    if args.resume:
+        if not os.path.isdir(args.resume):
+            raise ExperimentError(f"--resume {args.resume}: no such folder")
+    else:
+        _check_writable(args.log_folder, "-f/--log-folder")
+
+
+def _check_writable(folder: str, option: str) -> None:
+    """``folder`` is (or is created as) a folder this user can write a file in."""
+    from sb3_macb.zoo.experiment import ExperimentError
+
+    import tempfile
+
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise ExperimentError(f"{option} {folder} is not a folder this user can write to ({exc.strerror})") from None
+
+
 def _check_env_id(env_id: str) -> None:
     import gymnasium as gym
 
@@ -217,16 +257,15 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
 
     argv = list(sys.argv[1:] if argv is None else argv)
     args = make_parser().parse_args(argv)
+    _check_arguments(args)
     _check_env_id(args.env)
     if args.conf_file is not None and not str(args.conf_file).endswith((".yml", ".yaml")):
         raise ExperimentError(f"--conf-file {args.conf_file!r} is not a .yml/.yaml file")
-    if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
-        raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
     variants = [v for v in args.variant.split(",") if v]
     params = _pairs(args.hyperparams, "-params", args.unsafe_eval)
     check_hyperparams({key.split(".")[0]: None for key in params}, "-params")  # a typo there is named there
     hyperparams = load_hyperparams(args.env, args.conf_file, variants, {**(overrides or {}), **params})
-    n_timesteps = args.n_timesteps if args.n_timesteps > 0 else int(hyperparams.get("n_timesteps", 800_000))
+    n_timesteps = args.n_timesteps if args.n_timesteps is not None else int(hyperparams.get("n_timesteps", 800_000))
     env_kwargs = _pairs(args.env_kwargs, "--env-kwargs", args.unsafe_eval)
     if args.resume and args.seed < 0:  # a random seed is the one the run recorded
         saved = _saved_seed(args.resume)
@@ -284,13 +323,33 @@ def _optimize(args: argparse.Namespace, hyperparams: dict[str, Any], env_kwargs:
     """``--optimize``: rl_zoo3's Optuna search over MADDPG's and MACB's hyperparameters, from the resolved entry."""
     from rl_zoo3.exp_manager import ExperimentManager
 
-    from sb3_macb.zoo.experiment import EVALUATED_KEYS, evaluate_string, make_callbacks
+    from sb3_macb.zoo.experiment import (
+        EVALUATED_KEYS,
+        SAFE_CALLBACKS,
+        UNSAFE_HINT,
+        ExperimentError,
+        callback_entries,
+        check_values,
+        evaluate_string,
+        make_callbacks,
+        unsupported_keys,
+    )
 
+    check_values({**hyperparams, "n_timesteps": n_timesteps}, "--optimize")
     resolved = dict(hyperparams)
+    if not args.unsafe_eval:
+        # rl_zoo3 evals normalize/monitor_kwargs strings and imports and calls env wrappers: refused, as in plain runs
+        used = unsupported_keys(resolved)
+        if used:
+            raise ExperimentError(f"{used}: rl_zoo3 would evaluate or import these for --optimize; remove them ({UNSAFE_HINT})")
+        writers = [name for name, _ in callback_entries(resolved.get("callback")) if SAFE_CALLBACKS.get(name)]
+        if writers:
+            raise ExperimentError(f"'callback' {writers}: callbacks that write files are not passed to rl_zoo3's search "
+                                  f"(its trials have no run folder to confine them to); {UNSAFE_HINT}")  # fmt: skip
     for key in EVALUATED_KEYS:  # rl_zoo3 would eval these strings: hand it values
         if isinstance(resolved.get(key), str):
             resolved[key] = evaluate_string(resolved[key], f"hyperparameter '{key}'", args.unsafe_eval)
-    make_callbacks(resolved, args.unsafe_eval)  # refuses untrusted class names before rl_zoo3 imports them
+    make_callbacks(resolved, args.unsafe_eval)  # refuses classes outside the allow-list before rl_zoo3 imports them
     register_with_rl_zoo3()
 
     class _Manager(ExperimentManager):
