@@ -437,3 +437,22 @@ def test_a_trial_failed_by_another_worker_while_it_ran_is_run_again(tmp_path, mo
     assert work(str(config), storage_url, "late", str(tmp_path / "logs"), pack=pack, enqueue_wait=0.5) == 0
     assert len(calls) == 2  # the point ran again after its first result was refused
     check_grid_done_once(storage_url, "late", 1)
+
+
+def test_sweep_pack_a_point_refused_at_setup_fails_alone(tmp_path):
+    import csv
+
+    from sb3_macb.zoo.sweep import main as sweep
+
+    config = tmp_path / "grid.yml"
+    config.write_text(
+        "env: sb3_macb/CommunicativeNavigation-v0\nn_timesteps: 60\nvariant: fast\n"
+        "hyperparams: {batch_size: 8, policy_kwargs: 'dict(net_arch=[8])'}\n"
+        "grid: {exploration.beta: [0.5, -1.0]}\nseeds: [0]\n"
+    )
+    assert sweep(["--config", str(config), "--study-name", "p", "-f", str(tmp_path / "sw"), "--pack", "2",
+                  "--max-attempts", "1"]) == 1  # fmt: skip
+    with open(tmp_path / "sw" / "p" / "results.csv") as file:
+        rows = {row["exploration.beta"]: row for row in csv.DictReader(file)}
+    assert rows["0.5"]["status"] == "done" and os.path.isfile(os.path.join(rows["0.5"]["run_folder"], "evaluations.npz"))
+    assert rows["-1.0"]["status"] == "failed" and "beta must be a finite number >= 0" in rows["-1.0"]["error"]

@@ -41,6 +41,7 @@ import os
 import sys
 import time
 import warnings
+from copy import deepcopy
 from typing import Any, Callable, TypeVar
 
 import optuna
@@ -288,30 +289,41 @@ def _check_packable(config: dict[str, Any]) -> None:
         )
 
 
-def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], log_folder: str) -> list[tuple[float, float, str]]:
+def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], log_folder: str) -> list[tuple[float, float, str] | Exception]:
     """
-    Train several grid points as one pack (:mod:`sb3_macb.zoo.experiment`); each is the run it would be alone.
+    Train several grid points as one pack (:mod:`sb3_macb.zoo.experiment`); each is the run it would be alone. A point
+    whose settings are refused (checked alone first) fails alone: the others of the pack run without it.
 
     :param points: (trial number, parameters with ``seed``) of each point.
     :param log_folder: The sweep's folder; run ``N`` goes to ``trial_N``, the pack's checkpoints to ``pack_N``.
-    :return: (success rate, count-1 fraction, run folder) of each point.
+    :return: For each point, (success rate, count-1 fraction, run folder), or the error that refused it.
     """
     from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
 
     variants = [v for v in str(config.get("variant") or "").split(",") if v]
-    runs = []
+    eval_freq, eval_episodes = int(config.get("eval_freq", 20)), int(config.get("eval_episodes", 10))
+    env_kwargs = dict(config.get("env_kwargs") or {})
+    outcomes: list[Any] = []
     for number, params in points:
         overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
-        hyperparams = load_hyperparams(config["env"], config.get("conf_file"), variants, overrides)
-        runs.append(RunConfig(seed=int(params["seed"]), folder=os.path.join(log_folder, f"trial_{number}"),
-                              variants=variants, hyperparams=hyperparams))  # fmt: skip
-    n_timesteps = int(config.get("n_timesteps") or runs[0].hyperparams.get("n_timesteps", 800_000))
-    experiment_config = ExperimentConfig(
-        config["env"], runs, n_timesteps=n_timesteps, eval_freq=int(config.get("eval_freq", 20)),
-        eval_episodes=int(config.get("eval_episodes", 10)), env_kwargs=dict(config.get("env_kwargs") or {}),
-    )  # fmt: skip
-    Experiment(experiment_config, os.path.join(log_folder, f"pack_{points[0][0]}"), verbose=0).run()
-    return [_trial_result(config, run.folder) for run in runs]
+        try:
+            hyperparams = load_hyperparams(config["env"], config.get("conf_file"), variants, overrides)
+            run = RunConfig(seed=int(params["seed"]), folder=os.path.join(log_folder, f"trial_{number}"), variants=variants,
+                            hyperparams=hyperparams)  # fmt: skip
+            n_timesteps = int(config.get("n_timesteps") or hyperparams.get("n_timesteps", 800_000))
+            ExperimentConfig(config["env"], [deepcopy(run)], n_timesteps=n_timesteps, eval_freq=eval_freq,
+                             eval_episodes=eval_episodes, env_kwargs=env_kwargs)  # fmt: skip
+            outcomes.append((run, n_timesteps))
+        except Exception as exc:  # noqa: BLE001 (this point's own error, reported for it alone)
+            outcomes.append(exc)
+    runs = [o[0] for o in outcomes if not isinstance(o, Exception)]
+    if runs:
+        n_timesteps = next(o[1] for o in outcomes if not isinstance(o, Exception))
+        experiment_config = ExperimentConfig(config["env"], runs, n_timesteps=n_timesteps, eval_freq=eval_freq,
+                                             eval_episodes=eval_episodes, env_kwargs=env_kwargs)  # fmt: skip
+        first = next(number for (number, _), o in zip(points, outcomes) if not isinstance(o, Exception))
+        Experiment(experiment_config, os.path.join(log_folder, f"pack_{first}"), verbose=0).run()
+    return [o if isinstance(o, Exception) else _trial_result(config, o[0].folder) for o in outcomes]
 
 
 class _Heartbeats:
@@ -483,7 +495,12 @@ def _work_on_pack(
             trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:500])
             study.tell(trial, state=TrialState.FAIL)
         raise
-    for (trial, _), (success_rate, count1, run_folder) in zip(claimed, results):
+    for (trial, _), result in zip(claimed, results):
+        if isinstance(result, Exception):  # refused at setup: this point alone fails (and is retried, then reported)
+            trial.set_user_attr("error", f"{type(result).__name__}: {result}"[:500])
+            study.tell(trial, state=TrialState.FAIL)
+            continue
+        success_rate, count1, run_folder = result
         try:
             trial.set_user_attr("success_rate", success_rate)
             trial.set_user_attr("count1_fraction", count1)
