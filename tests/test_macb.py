@@ -29,7 +29,9 @@ def add(buffer, obs, action, agent_rewards):
 # --- count table ------------------------------------------------------------------------------------------------
 
 
-def test_count_table_matches_a_counter_through_growth():
+@pytest.mark.parametrize("chunk", [1 << 16, 7], ids=["one-chunk", "many-chunks"])
+def test_count_table_matches_a_counter_through_growth(monkeypatch, chunk):
+    monkeypatch.setattr(CountTable, "chunk", chunk)  # growth and large batches are probed chunk by chunk
     rng = np.random.default_rng(0)
     table = CountTable(capacity=16)
     reference: Counter = Counter()
@@ -44,6 +46,20 @@ def test_count_table_matches_a_counter_through_growth():
     np.testing.assert_array_equal(table.lookup(probe), [reference[int(k)] for k in probe])
     assert table.capacity >= table.num_codes / CountTable.max_load
     assert table.nbytes / table.num_codes <= 32
+
+
+def test_count_table_slot_arrays_load_as_they_are_and_are_not_shared():
+    table = CountTable()
+    table.add(np.arange(1, 200, dtype=np.uint64) * np.uint64(7919))
+    table.add(np.array([7919, 7919], dtype=np.uint64))
+    arrays = table.arrays()
+    loaded = CountTable.from_arrays(arrays["keys"], arrays["counts"], table.total_count)
+    assert (loaded.num_codes, loaded.total_count, loaded.num_count1, loaded.capacity) == \
+        (table.num_codes, table.total_count, table.num_count1, table.capacity)
+    loaded.add(np.array([5], dtype=np.uint64))
+    assert table.lookup(np.array([5], dtype=np.uint64))[0] == 0  # its own memory
+    with pytest.raises(ValueError, match="power-of-two"):
+        CountTable.from_arrays(arrays["keys"][:100], arrays["counts"][:100], 1)
 
 
 def test_count_table_state_roundtrip():
@@ -238,6 +254,15 @@ def test_save_load_continue(tmp_path):
     plain = make_model(None)
     with pytest.raises(ValueError, match="saved by a model using MACB"):
         plain.load_replay_buffer(tmp_path / "rb.pkl")
+
+    # models saved before 0.8.0 hold the occupied entries only (keys_i, counts_i): they still load
+    old_style = {name: t for name, t in model.exploration.state_dict().items() if name.startswith(("matrix_", "total_"))}
+    for i, table in enumerate(model.exploration.tables):
+        old_style[f"keys_{i}"] = th.from_numpy(table.state()["keys"].view(np.int64).copy())
+        old_style[f"counts_{i}"] = th.from_numpy(table.state()["counts"].astype(np.int64))
+    again = make_model(MACB(beta=0.8, k=64, scope="local"))
+    again.exploration.load_state_dict(old_style)
+    assert (again.exploration.num_codes, again.exploration.total_count) == (codes, total)
 
 
 def test_memory_per_code_and_table_size():

@@ -49,6 +49,7 @@ class CountTable:
 
     max_load = 0.75
     probe_window = 8
+    chunk = 1 << 16  # keys probed at a time: bounds the (keys x window) work arrays to a few MB at any table size
 
     def __init__(self, capacity: int = 64):
         capacity = 1 << max(4, int(np.ceil(np.log2(max(capacity, 16)))))
@@ -68,7 +69,16 @@ class CountTable:
 
     def _probe(self, keys: np.ndarray, insert: bool) -> np.ndarray:
         """
-        Slots of distinct ``keys``; missing keys are inserted (count 0) or reported as -1.
+        Slots of distinct ``keys``; missing keys are inserted (count 0) or reported as -1 (in chunks of
+        :attr:`chunk` keys, so that the work arrays stay small however many keys come at once).
+        """
+        if len(keys) <= self.chunk:
+            return self._probe_chunk(keys, insert)
+        return np.concatenate([self._probe_chunk(keys[i : i + self.chunk], insert) for i in range(0, len(keys), self.chunk)])
+
+    def _probe_chunk(self, keys: np.ndarray, insert: bool) -> np.ndarray:
+        """
+        :meth:`_probe` of one chunk.
 
         Linear probing, vectorized over the keys and over a window of ``probe_window`` slots at a time, so that a
         lookup or an insert takes one or two passes at any load the table allows.
@@ -115,13 +125,14 @@ class CountTable:
             capacity *= 2
         if capacity == self.capacity:
             return
-        occupied = self.keys != _EMPTY
-        old_keys, old_counts = self.keys[occupied], self.counts[occupied]
+        old_keys, old_counts = self.keys, self.counts
         self.keys = np.zeros(capacity, dtype=np.uint64)
         self.counts = np.zeros(capacity, dtype=np.uint32)
         self.num_codes = 0
-        slots = self._probe(old_keys, insert=True)
-        self.counts[slots] = old_counts
+        for start in range(0, len(old_keys), self.chunk):  # re-insert chunk by chunk: no copy of the old table
+            keys, counts = old_keys[start : start + self.chunk], old_counts[start : start + self.chunk]
+            occupied = keys != _EMPTY
+            self.counts[self._probe_chunk(keys[occupied], insert=True)] = counts[occupied]
 
     def add(self, keys: np.ndarray) -> None:
         """Count each key once more (a key repeated in ``keys`` is counted as often as it appears)."""
@@ -148,6 +159,35 @@ class CountTable:
         """The occupied entries, compactly (for saving)."""
         occupied = self.keys != _EMPTY
         return {"keys": self.keys[occupied], "counts": self.counts[occupied]}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The table as it is in memory (slot arrays with their empty slots), for saving without a rebuild on load."""
+        return {"keys": self.keys, "counts": self.counts}
+
+    @classmethod
+    def from_arrays(cls, keys: np.ndarray, counts: np.ndarray, total_count: int) -> "CountTable":
+        """
+        The table that :meth:`arrays` returned, copied as it is (no re-insertion: loading needs one copy of the
+        arrays beside them, and no time per code).
+
+        :param keys: (capacity,) uint64 slot keys (0: empty), capacity a power of two.
+        :param counts: (capacity,) uint32 counts.
+        :param total_count: Transitions counted (``total_count`` of the saved table).
+        """
+        # (copied: the table must not share memory with the tensors it was saved to or loaded from)
+        keys, counts = np.array(keys, dtype=np.uint64), np.array(counts, dtype=np.uint32)
+        capacity = len(keys)
+        if capacity < 16 or capacity & (capacity - 1) or counts.shape != keys.shape:
+            raise ValueError(f"a count table's slot arrays need one power-of-two length >= 16, got {keys.shape} and {counts.shape}")
+        table = cls.__new__(cls)
+        table.keys, table.counts = keys, counts
+        occupied = keys != _EMPTY
+        table.num_codes = int(np.count_nonzero(occupied))
+        if table.num_codes > cls.max_load * capacity or np.count_nonzero(counts[~occupied]):
+            raise ValueError("a count table's slot arrays are inconsistent (too full, or counts in empty slots)")
+        table.total_count = int(total_count)
+        table.num_count1 = int(np.count_nonzero(counts == 1))
+        return table
 
     @classmethod
     def from_state(cls, keys: np.ndarray, counts: np.ndarray) -> "CountTable":

@@ -237,10 +237,11 @@ class MACB:
         self._require_setup()
         tensors: dict[str, th.Tensor] = {}
         for i, (h, table) in enumerate(zip(self.hashes, self.tables)):
-            state = table.state()
+            # the slot arrays as they are (views, no copy): loading adopts them without re-inserting every code
+            arrays = table.arrays()
             tensors[f"matrix_{i}"] = th.from_numpy(h.matrix_t.copy())
-            tensors[f"keys_{i}"] = th.from_numpy(state["keys"].view(np.int64).copy())
-            tensors[f"counts_{i}"] = th.from_numpy(state["counts"].astype(np.int64))
+            tensors[f"slots_{i}"] = th.from_numpy(arrays["keys"].view(np.int64))
+            tensors[f"slot_counts_{i}"] = th.from_numpy(arrays["counts"].view(np.int32))
             tensors[f"total_{i}"] = th.tensor(table.total_count, dtype=th.int64)
         if not self.counts:
             tensors["constant_total"] = th.tensor(self._constant_total, dtype=th.int64)
@@ -254,7 +255,9 @@ class MACB:
         :param strict: Unused (the state must always match the MACB settings); kept for SB3's loader.
         """
         self._require_setup()
-        expected = {f"{name}_{i}" for i in range(len(self.tables)) for name in ("matrix", "keys", "counts", "total")}
+        compact = any(key.startswith("keys_") for key in state)  # written by sb3_macb < 0.8: occupied entries only
+        names = ("matrix", "keys", "counts", "total") if compact else ("matrix", "slots", "slot_counts", "total")
+        expected = {f"{name}_{i}" for i in range(len(self.tables)) for name in names}
         if not self.counts:
             expected = {"constant_total"}
         if set(state) != expected:
@@ -264,9 +267,14 @@ class MACB:
             if matrix.shape != h.matrix_t.shape:
                 raise ValueError(f"MACB: saved hash matrix has shape {matrix.shape}, expected {h.matrix_t.shape}")
             h.matrix_t = matrix.astype(np.float32)
-            keys = state[f"keys_{i}"].cpu().numpy().view(np.uint64)
-            table = CountTable.from_state(keys, state[f"counts_{i}"].cpu().numpy())
-            table.total_count = int(state[f"total_{i}"])
+            if compact:
+                keys = state[f"keys_{i}"].cpu().numpy().view(np.uint64)
+                table = CountTable.from_state(keys, state[f"counts_{i}"].cpu().numpy())
+                table.total_count = int(state[f"total_{i}"])
+            else:
+                slots = state[f"slots_{i}"].cpu().numpy().view(np.uint64)
+                table = CountTable.from_arrays(slots, state[f"slot_counts_{i}"].cpu().numpy().view(np.uint32),
+                                               int(state[f"total_{i}"]))  # fmt: skip
             self.tables[i] = table
         if not self.counts:
             self._constant_total = int(state["constant_total"])

@@ -850,7 +850,9 @@ class Experiment:
         # on the device a fresh start would use: a run started on a GPU continues on it
         device = self.config.runs[0].hyperparams.get("device", "auto")
         model, state = load_checkpoint(os.path.join(root, name), config=self.config.comparable(),
-                                       experiment_file=os.path.join(self.folder, EXPERIMENT_FILE), device=device)  # fmt: skip
+                                       experiment_file=os.path.join(self.folder, EXPERIMENT_FILE), device=device,
+                                       needed_keys=("sb3_macb", "config", "steps", "elapsed", "train_env", "eval_env",
+                                                    "callback", "rng"))  # fmt: skip
         callback = self._eval_callback(restore(state["eval_env"]))
         callback.set_state(state["callback"])
         restore_global_rngs(state)
@@ -867,6 +869,7 @@ def load_checkpoint(
     experiment_file: str = EXPERIMENT_FILE,
     allow_other_version: bool = False,
     device: th.device | str = "auto",
+    needed_keys: tuple[str, ...] = ("train_env",),
 ) -> tuple[MADDPG, dict[str, Any]]:
     """
     The model of checkpoint ``folder`` with its training env and replay buffer restored, and the checkpoint's state
@@ -882,6 +885,7 @@ def load_checkpoint(
     :param allow_other_version: Accept a checkpoint written by another sb3_macb version (for diagnosis: a version
         whose arithmetic differs does not continue the run exactly).
     :param device: The torch device to load the model on ("auto": CUDA where there is one, as a fresh run's default).
+    :param needed_keys: What ``state.pkl`` must hold (a resume needs all of it; a look inside, the train env).
     """
     state_file = os.path.join(folder, "state.pkl")
     try:
@@ -889,9 +893,8 @@ def load_checkpoint(
             state = pickle.load(file)
     except Exception as exc:  # noqa: BLE001 (any unpickling failure means a damaged file)
         raise ExperimentError(f"{state_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
-    needed = ("sb3_macb", "config", "steps", "elapsed", "train_env", "eval_env", "callback", "rng")
-    if not isinstance(state, dict) or any(key not in state for key in needed):
-        raise ExperimentError(f"{state_file} is damaged: it is not a checkpoint state (a dict with {list(needed)})")
+    if not isinstance(state, dict) or any(key not in state for key in needed_keys):
+        raise ExperimentError(f"{state_file} is damaged: it is not a checkpoint state (a dict with {list(needed_keys)})")
     if state.get("sb3_macb") != sb3_macb.__version__ and not allow_other_version:
         raise ExperimentError(f"{state_file} was written by sb3_macb {state.get('sb3_macb')}, this is {sb3_macb.__version__}")
     if config is not None and state.get("config") != config:
