@@ -289,3 +289,9 @@ def test_files_that_are_not_what_they_claim(tmp_path, capsys, monkeypatch):
         assert "root:" not in line
     assert cli(["plot", "curves", str(tmp_path / "nothing")]) == 2
     assert "nothing does not exist" in capsys.readouterr().err
+
+
+def test_an_unwritable_log_folder_is_one_line(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    one_line_error(capsys, ["train", *FAST, "-n", "40", "-f", str(blocker / "logs")], "-f/--log-folder", "a_file")

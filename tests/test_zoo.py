@@ -174,6 +174,87 @@ def test_sweep_postgresql(tmp_path):
     run_two_workers(tmp_path, url, f"grid_{os.getpid()}_{int(time.time())}")
 
 
+class FreezingProxy:
+    """A loopback TCP proxy to a server that, once frozen, keeps every connection open and forwards nothing."""
+
+    def __init__(self, host: str, port: int):
+        import socket
+        import threading
+
+        self.upstream = (host, port)
+        self.frozen = threading.Event()
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        import socket
+        import threading
+
+        while True:
+            try:
+                client, _ = self.server.accept()
+            except OSError:
+                return
+            upstream = socket.create_connection(self.upstream)
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    def _pump(self, source, target) -> None:
+        while True:
+            if self.frozen.is_set():  # a server that has stopped: nothing is read or answered, nothing is closed
+                time.sleep(0.1)
+                continue
+            try:
+                data = source.recv(65536)
+                if not data:
+                    return
+                if self.frozen.is_set():
+                    continue  # (dropped: the frozen server never answers it)
+                target.sendall(data)
+            except OSError:
+                return
+
+
+def test_a_postgresql_server_that_stops_answering_mid_sweep_is_reported_at_once(tmp_path):
+    from urllib.parse import urlsplit
+
+    url = os.environ.get("SB3_MACB_TEST_POSTGRES_URL")
+    if not url:
+        pytest.skip("SB3_MACB_TEST_POSTGRES_URL is not set: no PostgreSQL server (.ci/run starts one with .ci/start-postgres.sh)")
+    parts = urlsplit(url)
+    proxy = FreezingProxy(parts.hostname, parts.port or 5432)
+    proxied = url.replace(parts.netloc, f"{parts.username}@127.0.0.1:{proxy.port}" if parts.username else f"127.0.0.1:{proxy.port}")
+    name = f"frozen_{os.getpid()}_{int(time.time())}"
+    config = sweep_config(tmp_path, n_timesteps=100_000, betas=(0.5,), ks=(16,))
+    cmd = [sys.executable, "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", proxied, "--study-name", name,
+           "-f", str(tmp_path / "logs"), "--heartbeat", "1", "--storage-timeout", "5"]  # fmt: skip
+    worker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline:  # until its trial runs (read through the real server)
+        try:
+            if any(t.state == TrialState.RUNNING for t in optuna.load_study(study_name=name, storage=url).get_trials()):
+                break
+        except KeyError:
+            pass
+        time.sleep(0.5)
+    else:
+        worker.kill()
+        pytest.fail("the worker never started its trial")
+    time.sleep(2)  # training, heartbeats going
+    proxy.frozen.set()
+    frozen_at = time.time()
+    try:
+        _, err = worker.communicate(timeout=90)
+    finally:
+        worker.kill()
+    elapsed = time.time() - frozen_at
+    print(f"reported {elapsed:.1f} s after the server froze: {err.strip().splitlines()[-1] if err.strip() else err}")
+    assert worker.returncode == 2 and elapsed < 60, (worker.returncode, elapsed, err)
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err and "did not answer within 5 s" in lines[-1] and "127.0.0.1" in lines[-1], err
+
+
 def test_killed_workers_trial_is_run_again(tmp_path):
     storage = f"sqlite:///{tmp_path / 'sweep.db'}"
     config = sweep_config(tmp_path, n_timesteps=4000, betas=(0.5,), ks=(16, 32))

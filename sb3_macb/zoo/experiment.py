@@ -775,6 +775,8 @@ class Experiment:
         if not os.path.isfile(path):
             raise ExperimentError(f"{path} does not exist: {self.folder} holds no experiment to resume")
         saved = read_experiment_file(path)
+        if saved["config"].get("unsafe_eval") and not self.config.unsafe_eval:
+            raise ExperimentError(f"{path} was started with --unsafe-eval: pass it again to resume (only if you trust this folder)")
         mine, theirs = self.config.comparable(), comparable_settings(saved["config"])
         if mine != theirs:
             diff = settings_diff(theirs, mine)

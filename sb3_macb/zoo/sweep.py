@@ -147,20 +147,26 @@ def _redacted(url: str) -> str:
 
 
 def make_storage(
-    url: str, heartbeat_interval: int, attempts: int = 10, connect_timeout: int = 10, deadline: float = 60.0
+    url: str, heartbeat_interval: int, attempts: int = 10, connect_timeout: int = 10, deadline: float = 45.0,
+    timeout: float = 30.0,
 ) -> optuna.storages.RDBStorage:
     """
     An RDB storage (SQLite or PostgreSQL URL) with heartbeats and retry of the trials of dead workers.
 
     On SQLite, a worker waits up to a minute for another's write lock (Python's default is 5 s, which a busy
-    machine exceeds).
+    machine exceeds). On a network database every storage call must finish within ``timeout`` seconds: the server
+    is asked for statement and idle-transaction timeouts, TCP keepalives and a TCP user timeout find a dead
+    peer, and a call that still hangs (a server that accepts data but never answers, e.g. a stopped process) has
+    its connections shut down and raises a :class:`ConnectionError` naming the server.
 
     :param url: ``sqlite:///...`` or ``postgresql://...``.
     :param heartbeat_interval: Seconds between heartbeats; a trial silent for 3 intervals is failed and retried.
     :param attempts: Tries at connecting (and creating the tables) before giving up.
     :param connect_timeout: Seconds a PostgreSQL connection attempt may take (a server that accepts the connection
         but never answers would otherwise hang the worker).
-    :param deadline: Seconds after which connecting is given up with an error that names the server.
+    :param deadline: Seconds after which connecting is given up with an error that names the server (with the
+        last attempt's ``connect_timeout``, the error comes within a minute).
+    :param timeout: Seconds a storage call on a network database may take before it is broken off.
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
@@ -168,11 +174,20 @@ def make_storage(
     if url.startswith("sqlite"):
         engine_kwargs: dict[str, Any] | None = {"connect_args": {"timeout": 60}}
     elif url.startswith("postgresql"):
-        engine_kwargs = {"connect_args": {"connect_timeout": connect_timeout}, "pool_pre_ping": True}
+        ms = int(timeout * 1000)
+        engine_kwargs = {
+            "connect_args": {
+                "connect_timeout": connect_timeout,
+                "keepalives": 1, "keepalives_idle": 10, "keepalives_interval": 5, "keepalives_count": 3,
+                "tcp_user_timeout": ms,
+                "options": f"-c statement_timeout={ms} -c idle_in_transaction_session_timeout={2 * ms}",
+            },
+            "pool_pre_ping": True,
+        }  # fmt: skip
     else:
         engine_kwargs = None
     try:
-        return _with_retries(
+        storage = _with_retries(
             lambda: optuna.storages.RDBStorage(
                 url, engine_kwargs=engine_kwargs, heartbeat_interval=heartbeat_interval,
                 grace_period=3 * heartbeat_interval, heartbeat_stale_trial_callback=retry,
@@ -180,12 +195,84 @@ def make_storage(
             attempts,
             deadline=deadline,
         )  # fmt: skip
+        return storage if url.startswith("sqlite") else _guard_storage(storage, _redacted(url), timeout)
     except ImportError as exc:  # no driver for the URL's database: no use retrying
         hint = " (PostgreSQL: pip install 'sb3_macb[postgres]')" if url.startswith("postgresql") else ""
         raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)}: {exc}{hint}") from None
     except Exception as exc:  # noqa: BLE001 (every way of failing to connect gets the same clear message)
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)} (gave up after {deadline:.0f} s): {message}") from None
+
+
+class StorageTimeout(ConnectionError):
+    """A storage call on a network database did not finish in time (its connections were shut down)."""
+
+
+def _guard_storage(storage: optuna.storages.RDBStorage, name: str, timeout: float) -> optuna.storages.RDBStorage:
+    """
+    ``storage`` with every public method bounded by ``timeout`` seconds: a call that takes longer has the
+    storage's database connections shut down (the blocked read returns at once) and raises :class:`StorageTimeout`.
+    The methods are replaced on the instance, so it stays an ``RDBStorage`` (heartbeats, Optuna's caching).
+    """
+    import functools
+    import socket
+    import threading
+
+    from sqlalchemy import event
+
+    connections: dict[int, Any] = {}
+    lock = threading.Lock()
+
+    def remember(dbapi_connection: Any, record: Any) -> None:
+        with lock:
+            connections[id(dbapi_connection)] = dbapi_connection
+
+    def forget(dbapi_connection: Any, record: Any) -> None:
+        with lock:
+            connections.pop(id(dbapi_connection), None)
+
+    event.listen(storage.engine, "connect", remember)
+    event.listen(storage.engine, "close", forget)
+    storage.engine.dispose()  # the connections made while creating the storage are replaced by tracked ones
+
+    def shut_down(fired: threading.Event, done: threading.Event) -> None:
+        fired.set()
+        while not done.is_set():  # (until the call gives up: also the connections it makes meanwhile)
+            with lock:
+                live = list(connections.values())
+            for connection in live:
+                try:
+                    duplicate = socket.socket(fileno=os.dup(connection.fileno()))
+                    duplicate.shutdown(socket.SHUT_RDWR)  # acts on the shared socket: the blocked read ends
+                    duplicate.close()
+                except Exception:  # noqa: BLE001 (a connection already closed)
+                    pass
+            done.wait(0.5)
+
+    def bounded(method: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(method)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            fired, done = threading.Event(), threading.Event()
+            timer = threading.Timer(timeout, shut_down, args=(fired, done))
+            timer.daemon = True
+            timer.start()
+            try:
+                return method(*args, **kwargs)
+            except Exception as exc:
+                if fired.is_set():
+                    raise StorageTimeout(f"the sweep storage {name} did not answer within {timeout:.0f} s "
+                                         f"({method.__name__}); is the server running?") from None  # fmt: skip
+                raise
+            finally:
+                done.set()
+                timer.cancel()
+
+        return call
+
+    for attribute in dir(optuna.storages.RDBStorage):
+        if not attribute.startswith("_") and callable(getattr(optuna.storages.RDBStorage, attribute)):
+            setattr(storage, attribute, bounded(getattr(storage, attribute)))
+    return storage
 
 
 def point_key(point: dict[str, Any]) -> str:
@@ -327,18 +414,31 @@ def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], l
 
 
 class _Heartbeats:
-    """Heartbeats for trials claimed with ``study.ask()`` (``study.optimize`` sends its own)."""
+    """
+    Heartbeats for claimed trials. When the storage stops answering, the training under way is interrupted (the
+    main thread gets a KeyboardInterrupt, which leaving the ``with`` block turns into the storage's error), so that
+    the worker reports the lost server at once instead of at the end of its trial.
+    """
 
     def __init__(self, storage: optuna.storages.RDBStorage, trial_ids: list[int], interval: int):
         import threading
 
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, args=(storage, trial_ids, interval), daemon=True)
+        self.error: Exception | None = None
 
     def _beat(self, storage: optuna.storages.RDBStorage, trial_ids: list[int], interval: int) -> None:
+        import _thread
+
         while True:
-            for trial_id in trial_ids:
-                storage.record_heartbeat(trial_id)
+            try:
+                for trial_id in trial_ids:
+                    storage.record_heartbeat(trial_id)
+            except Exception as exc:  # noqa: BLE001 (the storage is gone: stop the trial and say so)
+                self.error = exc if isinstance(exc, ConnectionError) else ConnectionError(
+                    f"the sweep storage failed while the trial ran: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+                _thread.interrupt_main()
+                return
             if self._stop.wait(interval):
                 return
 
@@ -346,9 +446,11 @@ class _Heartbeats:
         self._thread.start()
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
         self._stop.set()
         self._thread.join()
+        if self.error is not None and exc_type is KeyboardInterrupt:
+            raise self.error from None
 
 
 def write_results(study: optuna.Study, path: str, points: list[dict[str, Any]] | None = None) -> int:
@@ -396,6 +498,7 @@ def work(
     max_attempts: int = 3,
     enqueue_wait: float = 60.0,
     num_threads: int = 1,
+    storage_timeout: float = 30.0,
 ) -> int:
     """
     Join the sweep as a worker and run grid points until none is waiting or running.
@@ -411,6 +514,7 @@ def work(
     :param max_attempts: A point that fails this many times is given up and reported.
     :param enqueue_wait: Seconds to wait for the worker that queues the grid before repairing the queue.
     :param num_threads: Torch threads of this worker (one per worker, as many workers as cores, is fastest).
+    :param storage_timeout: Seconds a call to a network storage may take (see :func:`make_storage`).
     :return: 0 when every grid point finished; 1 when some failed ``max_attempts`` times or are missing
         (``results.csv`` lists them with their status and error).
     """
@@ -421,28 +525,11 @@ def work(
     if pack > 0:
         _check_packable(config)
     points = grid_points(config)
-    storage = make_storage(storage_url, heartbeat)
+    storage = make_storage(storage_url, heartbeat, timeout=storage_timeout)
     study = _with_retries(
         lambda: optuna.create_study(study_name=study_name, storage=storage, direction="maximize", load_if_exists=True)
     )
     _enqueue_once(storage, study, study_name, points, wait=enqueue_wait)
-    grid = config["grid"]
-
-    def objective(trial: optuna.Trial) -> float:
-        if not trial.user_attrs.get("grid_point"):
-            raise optuna.TrialPruned("no grid point left for this trial")  # lost a race for the last point
-        params = {name: trial.suggest_categorical(name, values) for name, values in grid.items()}
-        params["seed"] = trial.suggest_categorical("seed", [int(s) for s in config["seeds"]])
-        folder = os.path.join(log_folder, study_name, f"trial_{trial.number}")
-        try:
-            success_rate, count1, run_folder = run_trial(config, params, folder)
-        except Exception as exc:
-            trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:500])
-            raise
-        trial.set_user_attr("success_rate", success_rate)
-        trial.set_user_attr("count1_fraction", count1)
-        trial.set_user_attr("run_folder", run_folder)
-        return success_rate
 
     while True:
         with warnings.catch_warnings():
@@ -451,18 +538,14 @@ def work(
         repair_queue(study, points, max_attempts)
         trials = study.get_trials(deepcopy=False, states=(TrialState.WAITING, TrialState.RUNNING))
         waiting = sum(t.state == TrialState.WAITING for t in trials)
-        if waiting and pack > 0:
-            try:
-                _work_on_pack(study, storage, config, min(pack, waiting), os.path.join(log_folder, study_name), heartbeat)
-            except Exception as exc:  # noqa: BLE001 (the points are failed and retried; the worker goes on)
-                print(f"sb3-macb sweep: a pack failed: {type(exc).__name__}: {exc}", file=sys.stderr)
-        elif waiting:
-            try:
-                study.optimize(objective, n_trials=1, catch=(Exception,))  # a failing point is retried, then reported
-            except (ValueError, optuna.exceptions.UpdateFinishedTrialError) as exc:
-                if not _finished_elsewhere(exc):
-                    raise
-                print(f"sb3-macb sweep: {_LATE}", file=sys.stderr)
+        if waiting:
+            size = min(pack, waiting) if pack > 0 else 1
+            try:  # a failing point is failed (then retried, then reported); the worker goes on
+                _work_on_pack(study, storage, config, size, os.path.join(log_folder, study_name), heartbeat, alone=pack == 0)
+            except ConnectionError:
+                raise
+            except Exception as exc:  # noqa: BLE001
+                print(f"sb3-macb sweep: {'a pack' if pack else 'a trial'} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
         elif trials:
             time.sleep(poll)
         else:
@@ -471,9 +554,13 @@ def work(
 
 
 def _work_on_pack(
-    study: optuna.Study, storage: optuna.storages.RDBStorage, config: dict[str, Any], size: int, folder: str, heartbeat: int
+    study: optuna.Study, storage: optuna.storages.RDBStorage, config: dict[str, Any], size: int, folder: str, heartbeat: int,
+    alone: bool = False,
 ) -> None:
-    """Claim up to ``size`` waiting grid points, train them as one pack and report each."""
+    """
+    Claim up to ``size`` waiting grid points, train them as one pack (``alone``: one point, in its own trial folder,
+    as :func:`run_trial` runs it) and report each.
+    """
     claimed: list[tuple[optuna.Trial, dict[str, Any]]] = []
     for _ in range(size):
         with warnings.catch_warnings():  # (heartbeats are sent by _Heartbeats below, not by study.optimize)
@@ -489,7 +576,13 @@ def _work_on_pack(
         return
     try:
         with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat):
-            results = run_pack(config, [(t.number, p) for t, p in claimed], folder)
+            if alone:
+                [(trial, params)] = claimed
+                results: list[Any] = [run_trial(config, params, os.path.join(folder, f"trial_{trial.number}"))]
+            else:
+                results = run_pack(config, [(t.number, p) for t, p in claimed], folder)
+    except ConnectionError:
+        raise
     except Exception as exc:
         for trial, _ in claimed:
             trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:500])
@@ -532,12 +625,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--heartbeat", type=int, default=30, help="seconds between a worker's heartbeats")
     parser.add_argument("--max-attempts", type=int, default=3, help="tries of a failing point before it is reported")
     parser.add_argument("--num-threads", type=int, default=1, help="torch threads of this worker")
+    parser.add_argument("--storage-timeout", type=float, default=30.0,
+                        help="seconds a call to a network storage (PostgreSQL) may take before the worker reports it")  # fmt: skip
     parser.add_argument("--pack", type=int, default=0, metavar="K",
                         help="claim up to K queued grid points at once and train them together in one process")  # fmt: skip
     args = parser.parse_args(argv)
     if args.pack < 0:
         parser.error("--pack must be >= 0")
+    if not args.storage_timeout > 0 or args.heartbeat < 1 or args.max_attempts < 1 or args.num_threads < 1:
+        parser.error("--storage-timeout must be > 0 and --heartbeat, --max-attempts, --num-threads >= 1")
     os.makedirs(args.log_folder, exist_ok=True)
     storage = args.storage or f"sqlite:///{os.path.abspath(os.path.join(args.log_folder, 'sweeps.db'))}"
-    return work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack,
-                max_attempts=args.max_attempts, num_threads=args.num_threads)  # fmt: skip
+    from sqlalchemy.exc import SQLAlchemyError
+
+    try:
+        return work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack,
+                    max_attempts=args.max_attempts, num_threads=args.num_threads, storage_timeout=args.storage_timeout)  # fmt: skip
+    except (SQLAlchemyError, optuna.exceptions.StorageInternalError) as exc:  # the server went away mid-sweep
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConnectionError(f"the sweep storage {_redacted(storage)} failed: {message}") from None

@@ -192,25 +192,26 @@ def _check_arguments(args: argparse.Namespace) -> None:
             th.device(args.device)
         except (RuntimeError, TypeError):
             raise ExperimentError(f"--device must be auto, cpu, cuda or cuda:N, got {args.device!r}") from None
-    if args.resume:
-        if not os.path.isdir(args.resume):
-            raise ExperimentError(f"--resume {args.resume}: no such folder")
-    else:
-        _check_writable(args.log_folder, "-f/--log-folder")
+    if args.resume and not os.path.isdir(args.resume):
+        raise ExperimentError(f"--resume {args.resume}: no such folder")
 
 
 def _check_writable(folder: str, option: str) -> None:
-    """``folder`` is (or is created as) a folder this user can write a file in."""
+    """``folder`` is a folder this user can write in, or can be made in one (checked without writing anything)."""
     from sb3_macb.zoo.experiment import ExperimentError
 
     import tempfile
 
+    existing = os.path.abspath(folder)
+    while not os.path.exists(existing) and os.path.dirname(existing) != existing:
+        existing = os.path.dirname(existing)  # the nearest folder that exists: the run's folders are made below it
     try:
-        os.makedirs(folder, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
+        if not os.path.isdir(existing):
+            raise NotADirectoryError(20, "not a directory")
+        with tempfile.TemporaryFile(dir=existing):  # (a file that leaves nothing behind)
             pass
     except OSError as exc:
-        raise ExperimentError(f"{option} {folder} is not a folder this user can write to ({exc.strerror})") from None
+        raise ExperimentError(f"{option} {folder} is not a folder this user can write to ({existing}: {exc.strerror})") from None
 
 
 def _check_env_id(env_id: str) -> None:
@@ -297,6 +298,8 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
         command="sb3-macb train " + " ".join(shlex.quote(a) for a in argv),
         unsafe_eval=args.unsafe_eval,
     )
+    if not args.resume:
+        _check_writable(args.log_folder, "-f/--log-folder")
     if args.verbose > 0:
         used = ", ".join(variants) or "none"
         print(f"{'Resuming' if args.resume else 'Training'} {args.env} (seed {args.seed}, {n_timesteps} steps) in {folder}")
