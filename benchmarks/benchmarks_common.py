@@ -31,7 +31,7 @@ def gemm_rates(rows: int = 100, n_in: int = 400, n_out: int = 300, repeats: int 
 
     import torch as th
 
-    from sb3_macb.common.grouped_mlp import _LINEAR
+    from sb3_macb.common.grouped_mlp import onednn_available, onednn_bf16_available
 
     x, w, b = th.randn(rows, n_in), th.randn(n_out, n_in), th.randn(n_out)
     xs, ws, bs = th.randn(2, rows, n_in), th.randn(2, n_out, n_in), th.randn(2, 1, n_out)
@@ -40,10 +40,12 @@ def gemm_rates(rows: int = 100, n_in: int = 400, n_out: int = 300, repeats: int 
         "mkl_addmm": (lambda: th.addmm(b, x, w.t()), flops),
         "bmm": (lambda: th.baddbmm(bs, xs, ws.transpose(1, 2)), 2 * flops),
     }
-    if _LINEAR is not None:
-        calls["onednn"] = (lambda: _LINEAR(x, w, b, "none", [], ""), flops)
-        x16, w16, b16 = x.bfloat16(), w.bfloat16(), b.bfloat16()
-        calls["onednn_bf16"] = (lambda: _LINEAR(x16, w16, b16, "none", [], ""), flops)  # policy_kwargs precision="bf16"
+    if onednn_available():
+        linear = th.ops.mkldnn._linear_pointwise
+        calls["onednn"] = (lambda: linear(x, w, b, "none", [], ""), flops)
+        if onednn_bf16_available():  # policy_kwargs precision="bf16"
+            x16, w16, b16 = x.bfloat16(), w.bfloat16(), b.bfloat16()
+            calls["onednn_bf16"] = (lambda: linear(x16, w16, b16, "none", [], ""), flops)
     rates = {}
     for name, (fn, work) in calls.items():
         for _ in range(repeats // 10):

@@ -38,8 +38,8 @@ th.set_num_threads(1)
 from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
 root, tag, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
 hp = [load_hyperparams("{env}", variants=v) for v in (["fast"], ["maddpg", "fast"])]
-for h in hp:
-    h.update(policy_kwargs="dict(net_arch=[32, 32])", batch_size=16)
+for h in hp:  # (a buffer of 300: it wraps before and after the checkpoint a kill resumes from)
+    h.update(policy_kwargs="dict(net_arch=[32, 32])", batch_size=16, buffer_size=300)
 runs = [RunConfig(seed=s, folder=f"{{root}}/{{tag}}/run_{{s}}", hyperparams=h) for s, h in zip((0, 1), hp)]
 config = ExperimentConfig("{env}", runs, n_timesteps=steps)
 Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0).run(resume=len(sys.argv) > 4)
@@ -125,6 +125,25 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
     # the diagnosis may read another version's checkpoint: past the version check, to the damaged model
     with pytest.raises(ExperimentError, match="model.zip is missing or damaged"):
         load_checkpoint(checkpoint, allow_other_version=True)
+
+
+def test_a_mixed_pack_through_the_runner_equals_its_solo_runs_past_the_buffer(tmp_path):
+    def hyperparams(variants):
+        hp = load_hyperparams(COMM, variants=variants)
+        hp.update(policy_kwargs="dict(net_arch=[16])", batch_size=8, buffer_size=100)
+        return hp
+
+    plan = [(0, ["maddpg", "fast"]), (1, ["fast"]), (2, ["macb_constant", "fast"])]  # seeds and variants mixed
+    runs = [RunConfig(seed, str(tmp_path / "pack" / f"run_{seed}"), variants, hyperparams(variants)) for seed, variants in plan]
+    Experiment(ExperimentConfig(COMM, runs, n_timesteps=300), str(tmp_path / "pack"), checkpoint_freq=150, verbose=0).run()
+    for seed, variants in plan:
+        alone = RunConfig(seed, str(tmp_path / f"alone_{seed}"), variants, hyperparams(variants))
+        Experiment(ExperimentConfig(COMM, [alone], n_timesteps=300), str(tmp_path / f"alone_{seed}"), verbose=0).run()
+        a = np.load(tmp_path / "pack" / f"run_{seed}" / "evaluations.npz")
+        b = np.load(tmp_path / f"alone_{seed}" / "evaluations.npz")
+        assert all(np.array_equal(a[name], b[name]) for name in b.files), seed
+        info = json.loads((tmp_path / "pack" / f"run_{seed}" / "run.json").read_text())
+        assert info["buffer_size_per_run"] == 100 and info["pack_size"] == 3
 
 
 def test_keep_models_keeps_every_checkpoints_model(tmp_path):

@@ -227,7 +227,7 @@ def test_a_postgresql_server_that_stops_answering_mid_sweep_is_reported_at_once(
     proxied = url.replace(parts.netloc, f"{parts.username}@127.0.0.1:{proxy.port}" if parts.username else f"127.0.0.1:{proxy.port}")
     name = f"frozen_{os.getpid()}_{int(time.time())}"
     config = sweep_config(tmp_path, n_timesteps=100_000, betas=(0.5,), ks=(16,))
-    cmd = [sys.executable, "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", proxied, "--study-name", name,
+    cmd = [sys.executable, "-X", "faulthandler", "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", proxied, "--study-name", name,
            "-f", str(tmp_path / "logs"), "--heartbeat", "1", "--storage-timeout", "5"]  # fmt: skip
     worker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
@@ -246,6 +246,9 @@ def test_a_postgresql_server_that_stops_answering_mid_sweep_is_reported_at_once(
     frozen_at = time.time()
     try:
         _, err = worker.communicate(timeout=90)
+    except subprocess.TimeoutExpired:
+        worker.send_signal(signal.SIGABRT)  # its threads' stacks, for the failure message
+        pytest.fail(f"the worker still runs 90 s after the server froze:\n{worker.communicate(timeout=30)[1][-6000:]}")
     finally:
         worker.kill()
     elapsed = time.time() - frozen_at

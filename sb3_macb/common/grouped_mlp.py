@@ -55,6 +55,11 @@ def _onednn_bf16_works() -> bool:
 _BF16_LINEAR = _onednn_bf16_works()
 
 
+def onednn_bf16_available() -> bool:
+    """Whether oneDNN's GEMM takes bfloat16 on this CPU (``precision="bf16"`` uses it for large layers)."""
+    return _BF16_LINEAR
+
+
 def onednn_available() -> bool:
     """Whether the oneDNN CPU path can be used in this PyTorch build."""
     return _LINEAR is not None

@@ -529,12 +529,14 @@ class Experiment:
     :param eval_log_freq: Print an evaluation summary every this many evaluations (1: SB3's table after each;
         None: nothing).
     :param save_best: Keep ``best_model.zip`` (by success rate) in the run's folder (single runs only).
+    :param callbacks: Callbacks run at every step beside the YAML's (e.g. a sweep worker's check of its storage);
+        not part of the experiment's settings.
     """
 
     def __init__(self, config: ExperimentConfig, folder: str, checkpoint_freq: int | None = None,
                  keep_checkpoint: bool = False, verbose: int = 1, progress_bar: bool = False,
                  tensorboard_log: str | None = None, log_interval: int | None = None, eval_log_freq: int | None = None,
-                 save_best: bool = False, keep_models: bool = False):  # fmt: skip
+                 save_best: bool = False, keep_models: bool = False, callbacks: list[BaseCallback] | None = None):  # fmt: skip
         if checkpoint_freq is not None and checkpoint_freq < 1:
             raise ExperimentError(f"checkpoint_freq must be >= 1 step, got {checkpoint_freq}")
         # absolute folders: what a run writes does not depend on the working directory of a later resume
@@ -552,6 +554,7 @@ class Experiment:
         self.eval_log_freq = eval_log_freq
         self.save_best = bool(save_best) and len(config.runs) == 1
         self.user_callbacks: list[BaseCallback] = []
+        self.callbacks = list(callbacks or [])
         self.stopped_early = False
         self.model: MADDPG | None = None
         self.eval_callback: MultiAgentEvalCallback | None = None
@@ -714,7 +717,7 @@ class Experiment:
         total = self.config.n_timesteps * self.n_runs
         model.learn(
             total - model.num_timesteps,
-            callback=[callback, _Checkpointer(self, self.checkpoint_freq), *self.user_callbacks],
+            callback=[callback, _Checkpointer(self, self.checkpoint_freq), *self.user_callbacks, *self.callbacks],
             reset_num_timesteps=not resume,
             progress_bar=self.progress_bar,
             log_interval=self.log_interval or 4,
@@ -950,6 +953,7 @@ def run_experiment(
     env_kwargs: dict[str, Any] | None = None,
     checkpoint_freq: int | None = None,
     verbose: int = 0,
+    callbacks: list[BaseCallback] | None = None,
 ) -> str:
     """
     Train one run, evaluated as the paper does, into ``log_folder`` (``evaluations.npz``, ``model.zip``,
@@ -966,6 +970,7 @@ def run_experiment(
     :param env_kwargs: Keyword arguments for the env.
     :param checkpoint_freq: Steps between checkpoints (None: none).
     :param verbose: 1 prints a line per checkpoint and at the end.
+    :param callbacks: Callbacks run at every step (see :class:`Experiment`).
     :return: ``log_folder``.
     """
     config = ExperimentConfig(
@@ -976,7 +981,7 @@ def run_experiment(
         eval_episodes=eval_episodes,
         env_kwargs=dict(env_kwargs or {}),
     )
-    Experiment(config, log_folder, checkpoint_freq=checkpoint_freq, verbose=verbose).run()
+    Experiment(config, log_folder, checkpoint_freq=checkpoint_freq, verbose=verbose, callbacks=callbacks).run()
     return log_folder
 
 

@@ -340,8 +340,11 @@ def repair_queue(study: optuna.Study, points: list[dict[str, Any]], max_attempts
     return queued
 
 
-def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -> tuple[float, float, str]:
-    """Train one grid point (:func:`~sb3_macb.zoo.experiment.run_experiment`); return (success rate, count-1, folder)."""
+def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str, callbacks: list[Any] | None = None) -> tuple[float, float, str]:
+    """
+    Train one grid point (:func:`~sb3_macb.zoo.experiment.run_experiment`); return (success rate, count-1, folder).
+    ``callbacks`` run at every step (a worker's check of its storage).
+    """
     from sb3_macb.zoo.experiment import load_hyperparams, run_experiment
 
     variants = [v for v in str(config.get("variant") or "").split(",") if v]
@@ -350,7 +353,7 @@ def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str) -
     n_timesteps = int(config.get("n_timesteps") or hyperparams.get("n_timesteps", 800_000))
     run_experiment(
         config["env"], hyperparams, int(params["seed"]), n_timesteps, run_folder, variants,
-        eval_freq=int(config.get("eval_freq", 20)), eval_episodes=int(config.get("eval_episodes", 10)),
+        eval_freq=int(config.get("eval_freq", 20)), eval_episodes=int(config.get("eval_episodes", 10)), callbacks=callbacks,
     )  # fmt: skip
     return _trial_result(config, run_folder)
 
@@ -376,13 +379,15 @@ def _check_packable(config: dict[str, Any]) -> None:
         )
 
 
-def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], log_folder: str) -> list[tuple[float, float, str] | Exception]:
+def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], log_folder: str,
+             callbacks: list[Any] | None = None) -> list[tuple[float, float, str] | Exception]:  # fmt: skip
     """
     Train several grid points as one pack (:mod:`sb3_macb.zoo.experiment`); each is the run it would be alone. A point
     whose settings are refused (checked alone first) fails alone: the others of the pack run without it.
 
     :param points: (trial number, parameters with ``seed``) of each point.
     :param log_folder: The sweep's folder; run ``N`` goes to ``trial_N``, the pack's checkpoints to ``pack_N``.
+    :param callbacks: Callbacks run at every step (a worker's check of its storage).
     :return: For each point, (success rate, count-1 fraction, run folder), or the error that refused it.
     """
     from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
@@ -409,15 +414,15 @@ def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], l
         experiment_config = ExperimentConfig(config["env"], runs, n_timesteps=n_timesteps, eval_freq=eval_freq,
                                              eval_episodes=eval_episodes, env_kwargs=env_kwargs)  # fmt: skip
         first = next(number for (number, _), o in zip(points, outcomes) if not isinstance(o, Exception))
-        Experiment(experiment_config, os.path.join(log_folder, f"pack_{first}"), verbose=0).run()
+        Experiment(experiment_config, os.path.join(log_folder, f"pack_{first}"), verbose=0, callbacks=callbacks).run()
     return [o if isinstance(o, Exception) else _trial_result(config, o[0].folder) for o in outcomes]
 
 
 class _Heartbeats:
     """
-    Heartbeats for claimed trials. When the storage stops answering, the training under way is interrupted (the
-    main thread gets a KeyboardInterrupt, which leaving the ``with`` block turns into the storage's error), so that
-    the worker reports the lost server at once instead of at the end of its trial.
+    Heartbeats for claimed trials. When the storage stops answering, :meth:`watchdog`'s callback raises the storage's
+    error at the training's next step, so that the worker reports the lost server at once instead of at the end of
+    its trial.
     """
 
     def __init__(self, storage: optuna.storages.RDBStorage, trial_ids: list[int], interval: int):
@@ -428,8 +433,6 @@ class _Heartbeats:
         self.error: Exception | None = None
 
     def _beat(self, storage: optuna.storages.RDBStorage, trial_ids: list[int], interval: int) -> None:
-        import _thread
-
         while True:
             try:
                 for trial_id in trial_ids:
@@ -437,7 +440,6 @@ class _Heartbeats:
             except Exception as exc:  # noqa: BLE001 (the storage is gone: stop the trial and say so)
                 self.error = exc if isinstance(exc, ConnectionError) else ConnectionError(
                     f"the sweep storage failed while the trial ran: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-                _thread.interrupt_main()
                 return
             if self._stop.wait(interval):
                 return
@@ -446,11 +448,23 @@ class _Heartbeats:
         self._thread.start()
         return self
 
-    def __exit__(self, exc_type: Any, *exc: Any) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self._stop.set()
         self._thread.join()
-        if self.error is not None and exc_type is KeyboardInterrupt:
-            raise self.error from None
+
+    def watchdog(self) -> Any:
+        """An SB3 callback that raises the heartbeats' storage error (a ConnectionError) at the next step."""
+        from stable_baselines3.common.callbacks import BaseCallback
+
+        beats = self
+
+        class _StorageWatchdog(BaseCallback):
+            def _on_step(self) -> bool:
+                if beats.error is not None:
+                    raise beats.error
+                return True
+
+        return _StorageWatchdog()
 
 
 def write_results(study: optuna.Study, path: str, points: list[dict[str, Any]] | None = None) -> int:
@@ -575,12 +589,12 @@ def _work_on_pack(
     if not claimed:
         return
     try:
-        with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat):
+        with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat) as beats:
             if alone:
                 [(trial, params)] = claimed
-                results: list[Any] = [run_trial(config, params, os.path.join(folder, f"trial_{trial.number}"))]
+                results: list[Any] = [run_trial(config, params, os.path.join(folder, f"trial_{trial.number}"), [beats.watchdog()])]
             else:
-                results = run_pack(config, [(t.number, p) for t, p in claimed], folder)
+                results = run_pack(config, [(t.number, p) for t, p in claimed], folder, [beats.watchdog()])
     except ConnectionError:
         raise
     except Exception as exc:
