@@ -266,8 +266,9 @@ def test_killed_workers_trial_is_run_again(tmp_path):
     while time.time() < deadline:  # wait until the victim has claimed a trial
         try:
             study = optuna.load_study(study_name="kill", storage=storage)
-            if any(t.state == TrialState.RUNNING for t in study.get_trials()):
-                break
+            running = [t for t in study.get_trials() if t.state == TrialState.RUNNING]
+            if running and (tmp_path / "logs" / "kill" / f"trial_{running[0].number}" / "experiment.json").exists():
+                break  # (killed while it trains)
         except KeyError:
             pass
         time.sleep(0.5)

@@ -580,6 +580,9 @@ def _work_on_pack(
         with warnings.catch_warnings():  # (heartbeats are sent by _Heartbeats below, not by study.optimize)
             warnings.simplefilter("ignore", UserWarning)
             trial = study.ask()  # takes a waiting (queued) trial when there is one
+        # a heartbeat at once: Optuna never finds a RUNNING trial stale before its first heartbeat, so a worker
+        # killed before that would leave its point running for ever
+        storage.record_heartbeat(trial._trial_id)
         if not trial.user_attrs.get("grid_point"):
             study.tell(trial, state=TrialState.PRUNED)  # another worker took the last queued point
             break
