@@ -31,9 +31,9 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
                 yield file
                 file.flush()
                 os.fsync(file.fileno())
+            except AtomicWriteError:  # (a nested atomic write names its own file)
+                raise
             except OSError as exc:
-                if isinstance(exc, AtomicWriteError):
-                    raise
                 raise AtomicWriteError(path, exc) from None
         os.replace(tmp, path)
     except BaseException:

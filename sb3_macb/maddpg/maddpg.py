@@ -385,6 +385,9 @@ class MADDPG(TD3):
             self.explorations = [self.__dict__.pop("exploration")]
         if self.n_envs % self.n_runs:
             raise ValueError(f"A pack of {self.n_runs} runs needs a number of envs divisible by {self.n_runs}, got {self.n_envs}")
+        self._convert_train_freq()  # (SB3's, idempotent: checked here, before the replay buffer is allocated)
+        if self.n_runs > 1 and self.train_freq.unit != TrainFrequencyUnit.STEP:
+            raise ValueError("train_freq: a pack counts it in steps ((N, 'step')); SB3 counts episodes over all envs")
         buffer_extra: dict[str, Any] = {"n_agents": layout.n_agents, "n_runs": self.n_runs}
         seeds = self.run_seeds or [None] * self.n_runs
         for exploration, seed in zip(self.explorations, seeds):
@@ -417,8 +420,6 @@ class MADDPG(TD3):
             super()._setup_model()
         finally:
             self.policy_kwargs, self.replay_buffer_kwargs = user_policy_kwargs, user_buffer_kwargs
-        if self.n_runs > 1 and self.train_freq.unit != TrainFrequencyUnit.STEP:
-            raise ValueError("train_freq: a pack counts it in steps ((N, 'step')); SB3 counts episodes over all envs")
 
         self._exploration_pack = _ExplorationPack(self.explorations)
         # Agent i's slice of the joint action, to put its actor's action into its own critic's input

@@ -300,12 +300,8 @@ def check_values(hyperparams: dict[str, Any], where: str) -> None:
         raise ExperimentError(f"{where}: 'policy' must be 'MlpPolicy' (MADDPG's only policy), got {hyperparams['policy']!r}")
     if hyperparams.get("noise_type") not in (None, "normal", "ornstein-uhlenbeck"):
         raise ExperimentError(f"{where}: 'noise_type' must be 'normal', 'ornstein-uhlenbeck' or null, got {hyperparams['noise_type']!r}")
-    device = hyperparams.get("device", "auto")
-    if device != "auto":
-        try:
-            th.device(device)
-        except (RuntimeError, TypeError):
-            raise ExperimentError(f"{where}: 'device' must be 'auto' or a torch device such as 'cpu' or 'cuda', got {device!r}") from None
+    if not valid_device(hyperparams.get("device", "auto")):
+        raise ExperimentError(f"{where}: 'device' must be 'auto' or a torch device such as 'cpu' or 'cuda', got {hyperparams['device']!r}")
     exploration = hyperparams.get("exploration")
     if exploration is not None:
         from sb3_macb.exploration.macb import MACB
@@ -314,6 +310,14 @@ def check_values(hyperparams: dict[str, Any], where: str) -> None:
             MACB.from_config(exploration)
         except (TypeError, ValueError) as exc:
             raise ExperimentError(f"{where}: 'exploration': {exc}") from None
+
+
+def valid_device(device: Any) -> bool:
+    """Whether ``device`` is ``"auto"`` or a name torch takes as a device (``cpu``, ``cuda``, ``cuda:1``, ...)."""
+    try:
+        return device == "auto" or th.device(device) is not None
+    except (RuntimeError, TypeError):
+        return False
 
 
 def unsupported_keys(hyperparams: dict[str, Any]) -> list[str]:
@@ -575,11 +579,7 @@ class Experiment:
         path = os.path.join(self.folder, EXPERIMENT_FILE)
         if not os.path.isfile(path):
             return "new"
-        try:
-            with open(path, "rb") as file:
-                saved = json.loads(file.read().decode("utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise ExperimentError(f"{path} is not a readable experiment file ({type(exc).__name__}: {exc})") from None
+        saved = _read_json(path)
         if isinstance(saved, dict) and saved.get("done"):
             return "done"
         return "checkpointed" if self._latest_checkpoint() is not None else "started"
@@ -778,8 +778,7 @@ class Experiment:
         if not os.path.isfile(path):
             raise ExperimentError(f"{path} does not exist: {self.folder} holds no experiment to resume")
         saved = read_experiment_file(path)
-        if saved["config"].get("unsafe_eval") and not self.config.unsafe_eval:
-            raise ExperimentError(f"{path} was started with --unsafe-eval: pass it again to resume (only if you trust this folder)")
+        _refuse_unsafe_from_file(path, saved, self.config.unsafe_eval)
         mine, theirs = self.config.comparable(), comparable_settings(saved["config"])
         if mine != theirs:
             diff = settings_diff(theirs, mine)
@@ -802,10 +801,9 @@ class Experiment:
             return self._write_checkpoint(name, tmp, steps)
         except OSError as exc:  # e.g. a full disk: the previous checkpoint stays what LATEST names
             shutil.rmtree(tmp, ignore_errors=True)
-            where = exc.filename if isinstance(exc, AtomicWriteError) else tmp
-            detail = exc.strerror if isinstance(exc, AtomicWriteError) else (exc.strerror or str(exc))
-            raise ExperimentError(f"writing the checkpoint at step {steps} failed ({where}: {detail}); the previous "
-                                  f"checkpoint is kept") from None  # fmt: skip
+            reason = str(exc) if isinstance(exc, AtomicWriteError) else f"{exc.filename or tmp}: {exc.strerror or exc}"
+            raise ExperimentError(f"writing the checkpoint at step {steps} failed ({reason}); the previous checkpoint "
+                                  f"is kept") from None  # fmt: skip
 
     def _write_checkpoint(self, name: str, tmp: str, steps: int) -> str:
         assert self.model is not None and self.eval_callback is not None
@@ -985,6 +983,26 @@ def run_experiment(
     return log_folder
 
 
+def _read_json(path: str) -> Any:
+    """An experiment file's JSON; a missing, unreadable or damaged file is an :class:`ExperimentError` naming it."""
+    try:
+        with open(path, "rb") as file:
+            return json.loads(file.read().decode("utf-8"))
+    except FileNotFoundError:
+        raise ExperimentError(f"{path} does not exist: {os.path.dirname(path) or '.'} holds no experiment to resume") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ExperimentError(f"{path} is not a readable experiment file ({type(exc).__name__}: {exc})") from None
+
+
+def _refuse_unsafe_from_file(path: str, saved: dict[str, Any], unsafe_eval: bool) -> None:
+    """``unsafe_eval`` comes from the command line only: a file started with it needs it given again."""
+    if saved["config"].get("unsafe_eval") and not unsafe_eval:
+        raise ExperimentError(
+            f"{path} was started with --unsafe-eval: resuming it evaluates its hyperparameter strings as Python. "
+            f"Pass --unsafe-eval again if you trust this folder"
+        )
+
+
 def read_experiment_file(path: str) -> dict[str, Any]:
     """
     ``experiment.json`` read and checked: a JSON object written by this sb3_macb version, with a ``config`` mapping.
@@ -992,13 +1010,7 @@ def read_experiment_file(path: str) -> dict[str, Any]:
 
     :param path: The file.
     """
-    try:
-        with open(path, "rb") as file:
-            saved = json.loads(file.read().decode("utf-8"))
-    except FileNotFoundError:
-        raise ExperimentError(f"{path} does not exist: {os.path.dirname(path) or '.'} holds no experiment to resume") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise ExperimentError(f"{path} is not a readable experiment file ({type(exc).__name__}: {exc})") from None
+    saved = _read_json(path)
     if not isinstance(saved, dict) or not isinstance(saved.get("config"), dict) or not isinstance(saved["config"].get("runs"), list):
         raise ExperimentError(f"{path} is not an experiment file (no 'config' with 'runs')")
     if saved.get("sb3_macb") != sb3_macb.__version__:
@@ -1022,13 +1034,8 @@ def load_experiment(folder: str, checkpoint_freq: int | None = None, verbose: in
     """
     path = os.path.join(folder, EXPERIMENT_FILE)
     saved = read_experiment_file(path)
-    config = dict(saved["config"])
-    if config.get("unsafe_eval") and not unsafe_eval:
-        raise ExperimentError(
-            f"{path} was started with --unsafe-eval: resuming it evaluates its hyperparameter strings as Python. "
-            f"Pass --unsafe-eval again if you trust this folder"
-        )
-    config["unsafe_eval"] = bool(unsafe_eval)
+    _refuse_unsafe_from_file(path, saved, unsafe_eval)
+    config = {**saved["config"], "unsafe_eval": bool(unsafe_eval)}
     here = os.path.abspath(folder)
     moved = "folder" in saved and os.path.realpath(str(saved["folder"])) != os.path.realpath(here)
     runs = []
@@ -1066,8 +1073,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.num_threads < 1:
             raise ExperimentError(f"--num-threads must be >= 1, got {args.num_threads}")
-        if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
-            raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
         th.set_num_threads(args.num_threads)
         load_experiment(args.resume, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models,
                         unsafe_eval=args.unsafe_eval).run(resume=True)  # fmt: skip

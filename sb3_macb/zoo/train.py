@@ -175,9 +175,7 @@ def _pairs(items: list[str], what: str, unsafe_eval: bool) -> dict[str, Any]:
 
 def _check_arguments(args: argparse.Namespace) -> None:
     """Refuse command-line values that cannot make a run, in one line naming the option (before anything is made)."""
-    import torch as th
-
-    from sb3_macb.zoo.experiment import ExperimentError
+    from sb3_macb.zoo.experiment import ExperimentError, valid_device
 
     if args.n_timesteps is not None and args.n_timesteps < 1:
         raise ExperimentError(f"-n/--n-timesteps must be >= 1 step, got {args.n_timesteps}")
@@ -187,11 +185,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
         raise ExperimentError(f"--eval-freq must be >= 0 and --eval-episodes >= 1, got {args.eval_freq} and {args.eval_episodes}")
     if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
         raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
-    if args.device != "auto":
-        try:
-            th.device(args.device)
-        except (RuntimeError, TypeError):
-            raise ExperimentError(f"--device must be auto, cpu, cuda or cuda:N, got {args.device!r}") from None
+    if not valid_device(args.device):
+        raise ExperimentError(f"--device must be auto, cpu, cuda or cuda:N, got {args.device!r}")
     if args.resume and not os.path.isdir(args.resume):
         raise ExperimentError(f"--resume {args.resume}: no such folder")
 
