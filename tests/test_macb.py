@@ -39,6 +39,10 @@ def test_count_table_matches_a_counter_through_growth(monkeypatch, chunk):
         keys = rng.integers(1, 3000, size=rng.integers(1, 40)).astype(np.uint64)  # repeats within and across batches
         table.add(keys)
         reference.update(keys.tolist())
+        # a few keys (probed one by one past their home slot) and many (the vectorized probe), a missing one among them
+        for size in (rng.integers(1, 30), 300):
+            few = np.append(rng.choice(np.fromiter(reference, dtype=np.uint64), size=size), np.uint64(4000 + size))
+            np.testing.assert_array_equal(table.lookup(few), [reference[int(k)] for k in few])
     assert table.num_codes == len(reference)
     assert table.total_count == sum(reference.values())
     assert table.num_count1 == sum(1 for v in reference.values() if v == 1)

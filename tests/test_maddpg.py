@@ -10,6 +10,7 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from toy_envs import Rendezvous
 
 from sb3_macb import MADDPG, MultiAgentReplayBuffer, make_joint_env
+from sb3_macb.common import grouped_mlp
 from sb3_macb.common.grouped_mlp import GroupedMLP, onednn_available
 
 SMALL = dict(net_arch=[32, 32])
@@ -86,9 +87,12 @@ def test_masked_weights_stay_zero_after_training():
     assert first[0, :, 0].abs().sum() > 0
 
 
-@pytest.mark.skipif(not onednn_available(), reason="this PyTorch build has no oneDNN")
-def test_onednn_and_bmm_paths_agree():
-    # oneDNN is a CPU path
+@pytest.mark.parametrize("onednn_fp32", [True, False], ids=["oneDNN", "MKL"])
+def test_onednn_and_bmm_paths_agree(monkeypatch, onednn_fp32):
+    # the per-group path is a CPU path; its large float32 products go to oneDNN or to MKL by the CPU (both tested)
+    if onednn_fp32 and not onednn_available():
+        pytest.skip("this PyTorch build has no oneDNN")
+    monkeypatch.setattr(grouped_mlp, "_ONEDNN_FP32", onednn_fp32)
     model = MADDPG("MlpPolicy", Rendezvous(), policy_kwargs=dict(net_arch=[128, 96]), seed=0, device="cpu")
     obs, act = th.randn(7, 3), th.randn(7, 3)
     results = []

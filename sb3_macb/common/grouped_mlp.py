@@ -5,10 +5,11 @@ in one pass.
 Two interchangeable execution paths compute the same function and gradients:
 
 - a portable path built from ``torch.baddbmm`` (any device, any activation, autograd does the backward);
-- on CPU, for float32 and ReLU, a path that calls oneDNN's GEMM directly (``torch.ops.mkldnn._linear_pointwise``)
-  inside one autograd ``Function`` for all groups and layers, with a hand-written backward. On AVX-512 CPUs
-  (AMD EPYC in particular, where MKL takes its AVX2 code path) oneDNN runs these shapes about twice as fast as
-  ``bmm``, at full float32 precision. Small layers, where a call's fixed cost dominates, use ``torch.addmm``.
+- on CPU, for float32 and ReLU, one autograd ``Function`` for all groups and layers with a hand-written backward,
+  calling one GEMM per group and layer: oneDNN's (``torch.ops.mkldnn._linear_pointwise``) for large layers on
+  AVX-512 CPUs, where it runs these shapes about twice as fast as MKL, and ``torch.addmm``/``mm`` (MKL) elsewhere
+  and for small layers, where a call's fixed cost dominates. Each group's products are the same calls alone or in a
+  pack.
 """
 
 from typing import Any
@@ -65,17 +66,43 @@ def onednn_available() -> bool:
     return _LINEAR is not None
 
 
+def _onednn_fp32_preferred() -> bool:
+    """
+    Whether large float32 products go to oneDNN rather than MKL: on CPUs with AVX-512, where oneDNN ran these shapes
+    1.6-2 times as fast as MKL (whose AVX-512 path some CPUs, AMD's in particular, do not get); on AVX2-only CPUs MKL
+    was 5-10% faster. Decided from the CPU's capability, never from a timing, so a machine always computes alike.
+    """
+    try:
+        capability = th.backends.cpu.get_cpu_capability()
+    except (AttributeError, RuntimeError):
+        capability = ""
+    return _LINEAR is not None and capability.upper().startswith("AVX512")
+
+
+_ONEDNN_FP32 = _onednn_fp32_preferred()
+
+
+def large_gemm_backend() -> str:
+    """The library that computes large float32 layers on this CPU: ``"onednn"`` or ``"mkl"`` (PyTorch's ``addmm``)."""
+    return "onednn" if _ONEDNN_FP32 else "mkl"
+
+
+def _use_onednn(weight: th.Tensor, rows: int) -> bool:
+    """Whether this product goes to oneDNN: large enough, and float32 where oneDNN is preferred or bfloat16."""
+    return weight.numel() >= ONEDNN_MIN_WEIGHTS and rows >= ONEDNN_MIN_ROWS and (_ONEDNN_FP32 or weight.dtype != th.float32)
+
+
 def _linear(x: th.Tensor, weight: th.Tensor, bias: th.Tensor | None, relu: bool) -> th.Tensor:
     """``x @ weight.T + bias`` (then ReLU), with weight of shape (out, in)."""
-    if weight.numel() >= ONEDNN_MIN_WEIGHTS and x.shape[0] >= ONEDNN_MIN_ROWS:
+    if _use_onednn(weight, x.shape[0]):
         return _LINEAR(x, weight, bias, "relu" if relu else "none", [], "")
     out = th.addmm(bias, x, weight.t()) if bias is not None else th.mm(x, weight.t())
     return out.relu_() if relu else out
 
 
 def _matmul_nt(a: th.Tensor, b: th.Tensor, out: th.Tensor | None = None) -> th.Tensor:
-    """``a @ b.T`` (into ``out`` when given: the small products write there directly, oneDNN's are copied)."""
-    if b.numel() >= ONEDNN_MIN_WEIGHTS and a.shape[0] >= ONEDNN_MIN_ROWS:
+    """``a @ b.T`` (into ``out`` when given: MKL writes there directly, oneDNN's result is copied)."""
+    if _use_onednn(b, a.shape[0]):
         result = _LINEAR(a, b, None, "none", [], "")
         return result if out is None else out.copy_(result)
     return th.mm(a, b.t(), out=out)
@@ -251,7 +278,7 @@ class GroupedMLP(nn.Module):
         bfloat16 GEMMs (AVX-512 BF16, AMX) and the layers are large.
     """
 
-    use_onednn: bool = True  # class-wide switch; the oneDNN path is taken only where it applies
+    use_onednn: bool = True  # class-wide switch of the per-group GEMM path (oneDNN or MKL), taken only where it applies
 
     def __init__(
         self,
@@ -342,7 +369,7 @@ class GroupedMLP(nn.Module):
         # (the ParameterLists' own __getitem__/__iter__ cost more than the small layers' matmuls)
         weights, biases = list(self.weights._parameters.values()), list(self.biases._parameters.values())
         in_mask, out_mask, out_bias_mask = self.in_mask, self.out_mask, self.out_bias_mask
-        large = self._large and self.use_onednn and self._relu and _LINEAR is not None and x.device.type == "cpu" and x.dtype == th.float32
+        large = self._large and self.use_onednn and self._relu and x.device.type == "cpu" and x.dtype == th.float32
         # bfloat16 for the large layers of minibatches only: small products (small layers; acting and evaluating on
         # a few rows) are faster in float32
         use_low = self._low_dtype is not None and self._large and x.shape[-2] >= ONEDNN_MIN_ROWS

@@ -134,13 +134,33 @@ class CountTable:
             occupied = keys != _EMPTY
             self.counts[self._probe_chunk(keys[occupied], insert=True)] = counts[occupied]
 
+    def _probe_one(self, key: int) -> int:
+        """:meth:`_probe` of one key, inserting it if missing, in plain Python (a vectorized pass costs more for one)."""
+        table_keys = self.keys
+        mask = len(table_keys) - 1
+        slot = key & mask
+        while True:
+            current = int(table_keys[slot])
+            if current == key:
+                return slot
+            if current == 0:
+                table_keys[slot] = key
+                self.num_codes += 1
+                return slot
+            slot = (slot + 1) & mask
+
     def add(self, keys: np.ndarray) -> None:
         """Count each key once more (a key repeated in ``keys`` is counted as often as it appears)."""
         keys = np.asarray(keys, dtype=np.uint64).ravel()
-        if len(keys) == 1:
-            unique, repeats = keys, np.ones(1, dtype=np.uint32)
-        else:
-            unique, repeats = np.unique(keys, return_counts=True)
+        if len(keys) == 1:  # one transition per step and run: the common case while collecting
+            self._grow(self.num_codes + 1)
+            slot = self._probe_one(int(keys[0]))
+            count = int(self.counts[slot]) + 1
+            self.counts[slot] = count
+            self.num_count1 += (count == 1) - (count == 2)
+            self.total_count += 1
+            return
+        unique, repeats = np.unique(keys, return_counts=True)
         self._grow(self.num_codes + len(unique))
         slots = self._probe(unique, insert=True)
         old = self.counts[slots]
@@ -152,8 +172,24 @@ class CountTable:
     def lookup(self, keys: np.ndarray) -> np.ndarray:
         """Counts of ``keys`` (0 for a key never counted)."""
         keys = np.asarray(keys, dtype=np.uint64).ravel()
-        slots = self._probe(keys, insert=False)  # (repeated keys are fine when nothing is inserted)
-        return np.where(slots >= 0, self.counts[np.maximum(slots, 0)], 0)
+        # most keys sit in their home slot: one gather resolves them, the probe handles the rest
+        home = (keys & np.uint64(self.capacity - 1)).astype(np.int64)
+        counts = self.counts[home]
+        away = np.flatnonzero(self.keys[home] != keys)
+        if 0 < len(away) <= 32:  # a few: probed one by one in plain Python
+            table_keys, mask = self.keys, self.capacity - 1
+            for row in away.tolist():
+                key, slot = int(keys[row]), (int(home[row]) + 1) & mask
+                while True:
+                    current = int(table_keys[slot])
+                    if current == key or current == 0:
+                        counts[row] = self.counts[slot] if current == key else 0
+                        break
+                    slot = (slot + 1) & mask
+        elif len(away):
+            slots = self._probe(keys[away], insert=False)  # (repeated keys are fine when nothing is inserted)
+            counts[away] = np.where(slots >= 0, self.counts[np.maximum(slots, 0)], 0)
+        return counts
 
     def state(self) -> dict[str, np.ndarray]:
         """The occupied entries, compactly (for saving)."""
