@@ -70,10 +70,10 @@ def describe_backend() -> str:
     """One line: torch, threads, the GEMM rates of each backend and the path GroupedMLP takes at 400-300 and 64-64."""
     import torch as th
 
-    from sb3_macb.common.grouped_mlp import ONEDNN_MIN_WEIGHTS, GroupedMLP, onednn_available
+    from sb3_macb.common.grouped_mlp import ONEDNN_MIN_WEIGHTS, GroupedMLP, large_gemm_backend
 
     rates = gemm_rates()
-    big = "per-group oneDNN" if GroupedMLP.use_onednn and onednn_available() else "batched baddbmm (MKL)"
+    big = f"per-group {large_gemm_backend()}" if GroupedMLP.use_onednn else "batched baddbmm (MKL)"
     cpu = "unknown CPU"
     try:
         with open("/proc/cpuinfo") as file:
