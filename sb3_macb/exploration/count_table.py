@@ -134,8 +134,11 @@ class CountTable:
             occupied = keys != _EMPTY
             self.counts[self._probe_chunk(keys[occupied], insert=True)] = counts[occupied]
 
-    def _probe_one(self, key: int) -> int:
-        """:meth:`_probe` of one key, inserting it if missing, in plain Python (a vectorized pass costs more for one)."""
+    def _probe_one(self, key: int, insert: bool) -> int:
+        """
+        :meth:`_probe` of one key in plain Python (for a few keys, a vectorized pass costs more): its slot; a missing
+        key is inserted (count 0) or reported as -1.
+        """
         table_keys = self.keys
         mask = len(table_keys) - 1
         slot = key & mask
@@ -144,6 +147,8 @@ class CountTable:
             if current == key:
                 return slot
             if current == 0:
+                if not insert:
+                    return -1
                 table_keys[slot] = key
                 self.num_codes += 1
                 return slot
@@ -154,7 +159,7 @@ class CountTable:
         keys = np.asarray(keys, dtype=np.uint64).ravel()
         if len(keys) == 1:  # one transition per step and run: the common case while collecting
             self._grow(self.num_codes + 1)
-            slot = self._probe_one(int(keys[0]))
+            slot = self._probe_one(int(keys[0]), insert=True)
             count = int(self.counts[slot]) + 1
             self.counts[slot] = count
             self.num_count1 += (count == 1) - (count == 2)
@@ -177,15 +182,9 @@ class CountTable:
         counts = self.counts[home]
         away = np.flatnonzero(self.keys[home] != keys)
         if 0 < len(away) <= 32:  # a few: probed one by one in plain Python
-            table_keys, mask = self.keys, self.capacity - 1
             for row in away.tolist():
-                key, slot = int(keys[row]), (int(home[row]) + 1) & mask
-                while True:
-                    current = int(table_keys[slot])
-                    if current == key or current == 0:
-                        counts[row] = self.counts[slot] if current == key else 0
-                        break
-                    slot = (slot + 1) & mask
+                slot = self._probe_one(int(keys[row]), insert=False)
+                counts[row] = self.counts[slot] if slot >= 0 else 0
         elif len(away):
             slots = self._probe(keys[away], insert=False)  # (repeated keys are fine when nothing is inserted)
             counts[away] = np.where(slots >= 0, self.counts[np.maximum(slots, 0)], 0)
