@@ -16,13 +16,12 @@ evaluations; thresholds on the trailing 200-evaluation mean):
   (4e4); *refuted* if fewer than half of the ``macb_joint`` seeds reach 90%, or its median is more than half of
   MADDPG's; otherwise *inconclusive*.
 - C2, counts or offset, for ``macb_joint`` (k 512) and ``macb_k32`` against ``macb_constant``: the differences of the
-  seed means of the final levels, any-step and final-step success. Counting is *credited* if MACB is ahead by at
-  least 0.05 on both metrics and its worst seed is above the constant bonus's mean on both. The effect is
-  *attributed to the reward offset* if a difference is below 0.05 in size or the two differences have opposite
-  signs (reading of the registration: anything short of a 0.05 difference in the same direction on both metrics).
-  Two outcomes the registration did not name are reported as they are: MACB ahead by 0.05 on both but not in every
-  seed (*not credited: not every seed*), and MACB behind by 0.05 on both (*not credited: counting is worse than
-  the offset alone*).
+  seed means of the final levels, any-step and final-step success (MACB minus the constant bonus). The effect is
+  *attributed to the reward offset* if either difference is below +0.05 (a negative difference is below it too) or
+  the two have opposite signs, as registered. Counting is *credited* if MACB is ahead by at least 0.05 on both
+  metrics and its worst seed is above the constant bonus's mean on both; ahead by 0.05 on both but not in every
+  seed, the registration withholds credit (*not credited: not every seed*). The figures printed beside a decision
+  include how far MACB's worst seed is from the constant bonus's mean, so a decision taken by a small margin shows.
 - C3, communication: a run *communicates* if its final level of final-step success is at least 0.15 above the
   no-communication level (the higher final-step success of the two scripted listeners that ignore the message,
   from ``--reference``); reported per variant as "k of n seeds communicate".
@@ -97,17 +96,20 @@ def decide_c1(macb: list[Run], maddpg: list[Run]) -> tuple[str, str]:
 
 def decide_c2(macb: list[Run], constant: list[Run]) -> tuple[str, str]:
     """C2 for one MACB variant against the constant bonus: the decision and the figures behind it."""
-    diffs, worst_above = [], []
+    diffs, worst, worst_above = [], [], []
     for attribute in ("final_any", "final_last"):
         ours = np.array([getattr(r, attribute) for r in macb])
         theirs = float(np.mean([getattr(r, attribute) for r in constant]))
         diffs.append(float(ours.mean() - theirs))
+        worst.append(float(ours.min() - theirs))
         worst_above.append(bool(ours.min() > theirs))
-    figures = f"difference of seed means {diffs[0]:+.3f} any-step, {diffs[1]:+.3f} final-step"
-    if min(abs(d) for d in diffs) < MARGIN or np.sign(diffs[0]) != np.sign(diffs[1]):
+    figures = (
+        f"difference of seed means {diffs[0]:+.4f} any-step, {diffs[1]:+.4f} final-step (credit needs +{MARGIN} on "
+        f"both); MACB's worst seed minus the constant bonus's mean {worst[0]:+.4f} any-step, {worst[1]:+.4f} final-step"
+        " (credit needs both above 0)"
+    )
+    if min(diffs) < MARGIN or np.sign(diffs[0]) != np.sign(diffs[1]):
         return "attributed to the reward offset", figures
-    if diffs[0] < 0:
-        return "not credited: counting is worse than the offset alone", figures
     if all(worst_above):
         return "counting credited", figures
     return "not credited: not every seed", figures
@@ -127,7 +129,7 @@ def analyse(task_folder: str, expected_seeds: int, reference_path: str) -> str:
     tag = "INTERIM (fewer complete seeds than registered): " if interim else ""
     bar = no_communication_level(reference_path) + COMMUNICATION_MARGIN
     lines = [f"### {os.path.basename(os.path.normpath(task_folder))}", ""]
-    lines.append("| variant | complete seeds | final any-step success | final final-step success | "
+    lines.append("| variant | complete seeds | final any-step success, mean +/- sample SD (seeds) | final final-step success | "
                  "reached 90% any-step | communicates | incomplete seeds |")  # fmt: skip
     lines.append("|---|---|---|---|---|---|---|")
     for variant in sorted(set(runs) | set(incomplete)):
@@ -139,7 +141,8 @@ def analyse(task_folder: str, expected_seeds: int, reference_path: str) -> str:
 
         def level(attribute: str) -> str:
             values = [getattr(r, attribute) for r in done]
-            return f"{np.mean(values):.3f} +/- {np.std(values):.3f} ({', '.join(f'{v:.3f}' for v in values)})"
+            spread = f" +/- {np.std(values, ddof=1):.3f}" if len(values) > 1 else ""
+            return f"{np.mean(values):.3f}{spread} ({', '.join(f'{v:.3f}' for v in values)})"
 
         lines.append(
             f"| {variant} | {', '.join(str(r.seed) for r in done)} | {level('final_any')} | {level('final_last')} | "

@@ -28,6 +28,11 @@ km_median = evaluations.km_median
 load_run = evaluations.load
 
 
+def sample_sd(values: list[float]) -> float:
+    """The seeds' sample standard deviation (n - 1 in the denominator); 0 for a single seed."""
+    return float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+
+
 def summarize(
     task_folder: str,
     threshold: float,
@@ -41,8 +46,8 @@ def summarize(
     name = evaluations.SUCCESS_METRICS.get(metric, metric)
     lines = [
         f"| variant | seeds | reached {threshold:.0%} {name} | Kaplan-Meier median episodes | episodes per seed | final "
-        f"{name} (last {final} evals), mean +/- std | per seed | episodes run | wall time per run |"
-        + (" training collisions (mean +/- std) |" if collisions else ""),
+        f"{name} (last {final} evals), mean +/- sample SD | per seed | episodes run | wall time per run |"
+        + (" training collisions (mean +/- sample SD) |" if collisions else ""),
         "|---|---|---|---|---|---|---|---|---|" + ("---|" if collisions else ""),
     ]
     commands = []
@@ -80,9 +85,9 @@ def summarize(
         median = km_median(reached, hit)
         lines.append(
             f"| {variant} | {len(reached)} | {sum(hit)} of {len(hit)} | {'not reached' if median is None else f'{median:.0f}'} | "
-            f"{', '.join(per_seed)} | {np.mean(finals):.3f} +/- {np.std(finals):.3f} | {', '.join(f'{f:.3f}' for f in finals)} | "
+            f"{', '.join(per_seed)} | {np.mean(finals):.3f} +/- {sample_sd(finals):.3f} | {', '.join(f'{f:.3f}' for f in finals)} | "
             f"{', '.join(map(str, lengths))} | {wall} |"
-            + (f" {np.mean(crashes):.0f} +/- {np.std(crashes):.0f} |" if collisions else "")
+            + (f" {np.mean(crashes):.0f} +/- {sample_sd(crashes):.0f} |" if collisions else "")
         )
     text = "\n".join(lines)
     if commands:

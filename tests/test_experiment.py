@@ -204,6 +204,19 @@ def test_the_refcode_variant_ends_episodes_on_success_and_stores_time_limits_as_
     assert plain.replay_buffer.timeouts[:400, 0].sum() == 20  # the default: every episode runs 20 steps, bootstrapped
 
 
+def test_the_timeout_terminal_variant_stores_the_20_step_cut_as_terminal_and_never_ends_on_success():
+    from sb3_macb.zoo.experiment import model_kwargs
+
+    hyperparams = load_hyperparams(COMM, variants=["maddpg", "timeout_terminal", "fast"])
+    assert "env_kwargs" not in hyperparams  # the plain env: episodes are never ended on success
+    kwargs = model_kwargs({**hyperparams, "learning_starts": 2000})
+    model = MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), seed=0, **kwargs)
+    model.learn(2000)
+    buffer = model.replay_buffer
+    assert buffer.timeouts[:2000].sum() == 0  # not marked as time limits: the target does not bootstrap there
+    assert np.array_equal(np.flatnonzero(buffer.dones[:2000, 0]), np.arange(19, 2000, 20))  # every 20th step, only
+
+
 SAVE_LOOP = """
 import sys
 from sb3_macb import MADDPG
