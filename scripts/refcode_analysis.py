@@ -4,19 +4,25 @@ applied mechanically:
 
     python scripts/refcode_analysis.py results/CommunicativeNavigation-sparse-refcode \\
         --plain results/CommunicativeNavigation-sparse-4e4 --expected-seeds 3
+    python scripts/refcode_analysis.py results/CommunicativeNavigation-sparse-timeout-terminal --handling \\
+        timeout_terminal --plain results/CommunicativeNavigation-sparse-4e4-1e6 --expected-seeds 3
+
+``--handling`` names the zoo variant of the episode handling (``refcode``: episodes end on success and time limits
+are terminal; ``timeout_terminal``: only the 20-step cut, stored as terminal); the runs are
+``maddpg+<handling>`` and ``macb_constant+<handling>``, and ``<handling>`` stands for it in the rules below.
 
 Only complete runs are used, and the decisions are printed as INTERIM until every variant has ``--expected-seeds``
 complete seeds. The rules, as registered (final level: mean any-step success over the last 200 evaluations; a run
 reaches 90% when its trailing 200-evaluation mean does):
 
-- R1, the handling alone: ``maddpg+refcode`` against the plain MADDPG runs of the same seeds (``--plain``). A
+- R1, the handling alone: ``maddpg+<handling>`` against the plain MADDPG runs of the same seeds (``--plain``). A
   *change* if the difference of the seed means is at least 0.05 in size and the two sets of seeds do not overlap
   (every seed of one above every seed of the other); otherwise *no change detected*.
-- R2, the offset under that handling: ``macb_constant+refcode`` against ``maddpg+refcode``. The offset *helps* if
-  its seed mean is at least 0.05 higher and its worst seed is above ``maddpg+refcode``'s mean; it *hurts* if its
+- R2, the offset under that handling: ``macb_constant+<handling>`` against ``maddpg+<handling>``. The offset *helps* if
+  its seed mean is at least 0.05 higher and its worst seed is above ``maddpg+<handling>``'s mean; it *hurts* if its
   seed mean is at least 0.05 lower and its best seed is below that mean; otherwise *no effect detected*.
-- R3, the paper's picture: *reproduced through the offset* if ``macb_constant+refcode`` reaches 90% any-step
-  success in at least 2 of 3 seeds and ``maddpg+refcode`` in none; otherwise *not reproduced*.
+- R3, the paper's picture: *reproduced through the offset* if ``macb_constant+<handling>`` reaches 90% any-step
+  success in at least 2 of 3 seeds and ``maddpg+<handling>`` in none; otherwise *not reproduced*.
 """
 
 import argparse
@@ -28,7 +34,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from headline_analysis import MARGIN, Run, load_runs  # noqa: E402  (a sibling script)
 
-MADDPG, CONSTANT, PLAIN = "maddpg+refcode", "macb_constant+refcode", "maddpg"
+PLAIN = "maddpg"
 
 
 def levels(runs: list[Run]) -> str:
@@ -61,8 +67,9 @@ def decide_r3(constant: list[Run], maddpg: list[Run]) -> str:
     return "reproduced through the offset" if reproduced else "not reproduced"
 
 
-def analyse(folder: str, plain_folder: str, expected_seeds: int) -> str:
-    """The markdown report of R1-R3."""
+def analyse(folder: str, plain_folder: str, expected_seeds: int, handling: str = "refcode") -> str:
+    """The markdown report of R1-R3 for the runs of one episode handling (a zoo variant's name)."""
+    MADDPG, CONSTANT = f"maddpg+{handling}", f"macb_constant+{handling}"  # noqa: N806
     runs, incomplete = load_runs(folder)
     missing = [v for v in (MADDPG, CONSTANT) if len(runs.get(v, [])) < expected_seeds]
     tag = "INTERIM (fewer complete seeds than registered): " if missing or incomplete else ""
@@ -94,8 +101,10 @@ def main() -> None:
     parser.add_argument("folder", help="the refcode runs: <folder>/<variant>/seed_<s>/")
     parser.add_argument("--plain", required=True, help="the task folder holding the plain maddpg runs of the same seeds")
     parser.add_argument("--expected-seeds", type=int, required=True, help="the seeds per variant registered")
+    parser.add_argument("--handling", default="refcode", choices=["refcode", "timeout_terminal"],
+                        help="the zoo variant of the episode handling")  # fmt: skip
     args = parser.parse_args()
-    print(analyse(args.folder, args.plain, args.expected_seeds))
+    print(analyse(args.folder, args.plain, args.expected_seeds, args.handling))
 
 
 if __name__ == "__main__":

@@ -175,6 +175,52 @@ def test_headline_c2_outcomes(macb, constant, decision):
     assert analysis.decide_c2(runs(macb), runs(constant))[0] == decision
 
 
+def write_nav_run(folder: Path, any_step: list[float], collisions: float, complete: bool = True) -> None:
+    """A 2-Agent Navigation run as reproduce.py files it: both success metrics and accumulated collisions."""
+    write_headline_run(folder, any_step, any_step, complete)
+    arrays = dict(np.load(folder / "evaluations.npz"))
+    arrays["training_collisions"] = np.linspace(0, collisions, len(any_step))
+    np.savez(folder / "evaluations.npz", **arrays)
+
+
+def test_nav_analysis_applies_its_registered_rules(tmp_path):
+    analysis = load_script("nav_analysis")
+    task, n = tmp_path / "nav", 1000  # evaluations of 100 episodes each
+    for seed in range(3):
+        # MADDPG ends at 0.9 (target 0.81) and reaches it at evaluation ~700: episodes ~70,000
+        write_nav_run(task / "maddpg" / f"seed_{seed}", [0.3] * 500 + [0.9] * 500, 2000 + 100 * seed)
+        for variant in ("macb_joint", "macb_local", "macb_state"):  # at 1.0 from evaluation 100 + 10 * seed
+            write_nav_run(task / variant / f"seed_{seed}", [0.0] * (100 + 10 * seed) + [1.0] * (900 - 10 * seed),
+                          1000 + 100 * seed)  # fmt: skip
+        write_nav_run(task / "macb_constant" / f"seed_{seed}", [0.9] * n, 1900 + 150 * seed, complete=seed < 2)
+        write_nav_run(task / "ddpg" / f"seed_{seed}", [0.1] * n, 1500 + 100 * seed)
+        write_nav_run(task / "ddpg_macb" / f"seed_{seed}", [0.1] * n, 1400 + 100 * seed)
+    assert "N1, the paper's claim (target 0.810 any-step success): INTERIM" in analysis.analyse(str(task), 3)
+    write_nav_run(task / "macb_constant" / "seed_2", [0.9] * n, 2200)
+    report = analysis.analyse(str(task), 3)
+    assert "- N1, macb_joint: **meets**" in report and "N1, the paper's claim (target 0.810 any-step success): **confirmed**" in report
+    # MACB 1.0 against the constant's 0.9 on both metrics, and every MACB seed above: credited
+    assert "- N2, macb_state against macb_constant: **counting credited**" in report
+    assert "- N3, macb_joint against maddpg (the paper: fewer): **macb_joint collides less**" in report
+    assert "- N3, ddpg_macb against ddpg (the paper: fewer): **no difference detected**" in report  # 7% fewer
+    assert "- N3, maddpg against ddpg (the paper: more): **maddpg collides more**" in report
+    assert "- N3, macb_constant against maddpg (the offset alone): **no difference detected**" in report  # overlap
+    # one MACB variant that never reaches the target refutes the claim for every variant together
+    for seed in range(3):
+        write_nav_run(task / "macb_local" / f"seed_{seed}", [0.5] * n, 1000)
+    report = analysis.analyse(str(task), 3)
+    assert "- N1, macb_local: **fails**" in report and "the paper's claim (target 0.810 any-step success): **refuted**" in report
+    # MADDPG that learns little: the target is the floor, 0.2
+    for seed in range(3):
+        write_nav_run(task / "maddpg" / f"seed_{seed}", [0.05] * n, 2000)
+    assert "target 0.200 any-step success" in analysis.analyse(str(task), 3)
+    runs = lambda values: [analysis.NavRun(i, {}, 0.0, 0.0, c) for i, c in enumerate(values)]  # noqa: E731
+    assert analysis.decide_n3(runs([70, 75, 80]), runs([100, 110, 120])) == "less"
+    assert analysis.decide_n3(runs([70, 75, 101]), runs([100, 110, 120])) == "no difference detected"
+    assert analysis.decide_n3(runs([85, 85, 85]), runs([100, 100, 100])) == "no difference detected"  # 15% only
+    assert analysis.decide_n3(runs([100, 110, 120]), runs([70, 75, 80])) == "more"
+
+
 def test_complete_only_leaves_out_runs_in_progress(tmp_path):
     from sb3_macb.common import evaluations
 
@@ -459,3 +505,13 @@ def test_refcode_analysis_applies_its_registered_rules(tmp_path):
     assert analysis.decide_r2(runs([0.1, 0.2, 0.3]), runs([0.6, 0.6, 0.6])) == "hurts"
     assert analysis.decide_r2(runs([0.1, 0.2, 0.7]), runs([0.6, 0.6, 0.6])) == "no effect detected"
     assert analysis.decide_r2(runs([0.7, 0.7, 0.5]), runs([0.6, 0.6, 0.6])) == "no effect detected"
+
+    # the same rules for the timeout_terminal handling: its own variant names
+    handled = tmp_path / "timeout"
+    for seed in range(3):
+        write_headline_run(handled / "maddpg+timeout_terminal" / f"seed_{seed}", [0.3] * n, [0.2] * n)
+        write_headline_run(handled / "macb_constant+timeout_terminal" / f"seed_{seed}", [0.3] * n, [0.2] * n)
+    report = analysis.analyse(str(handled), str(plain), 3, handling="timeout_terminal")
+    assert "R1, the handling alone (maddpg+timeout_terminal against plain maddpg): **no change detected**" in report
+    assert "**no effect detected**" in report and "**not reproduced**" in report
+    assert "Not enough complete runs" in analysis.analyse(str(refcode), str(plain), 3, handling="timeout_terminal")
