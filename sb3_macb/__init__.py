@@ -5,7 +5,7 @@ from sb3_macb.envs import AgentLayout, JointEnv, make_joint_env
 from sb3_macb.exploration import MACB
 from sb3_macb.maddpg import MADDPG, MADDPGPolicy, MlpPolicy
 
-__version__ = "0.9.0"
+__version__ = "0.10.0"
 
 __all__ = [
     "MACB",

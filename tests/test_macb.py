@@ -276,3 +276,94 @@ def test_memory_per_code_and_table_size():
     assert e.total_count == 300
     assert 0 < e.num_codes <= 300
     assert e.nbytes / e.num_codes <= 32  # 12 bytes per slot, at most 3/4 and at least 3/8 of the slots used
+
+
+# --- how the bonus enters the update: normalisation and schedules ----------------------------------------------------
+
+
+@pytest.mark.parametrize("normalize", ["center", "zscore"])
+def test_a_normalized_constant_bonus_trains_exactly_as_plain_maddpg(normalize):
+    plain = make_model(None)
+    offset = make_model(MACB(beta=0.8, counts=False, normalize=normalize))
+    plain.learn(310)  # 300 updates after 10 steps of random actions
+    offset.learn(310)
+    assert plain._n_updates == offset._n_updates == 300
+    for a, b in zip(plain.policy.state_dict().values(), offset.policy.state_dict().values()):
+        assert th.allclose(a, b, atol=1e-6, rtol=0)
+    assert offset.exploration.normalizer.mean.tolist() == [1.0]  # exactly: the constant's running mean is itself
+    # the same constant without normalisation is a reward offset: its critics part from plain MADDPG's
+    shifted = make_model(MACB(beta=0.8, counts=False))
+    shifted.learn(310)
+    assert not all(th.allclose(a, b, atol=1e-3) for a, b in zip(plain.policy.state_dict().values(), shifted.policy.state_dict().values()))
+
+
+def test_normalizer_moving_averages_center_and_scale():
+    from sb3_macb.exploration.normalize import BonusNormalizer
+
+    rng = np.random.default_rng(0)
+    norm = BonusNormalizer("zscore", rate=0.1, std_floor=0.01)
+    mean, square = None, None
+    for _ in range(300):
+        batch = rng.normal([2.0, 0.5], [0.3, 0.001], size=(100, 2))  # column 1 hardly varies: the floor applies
+        out = norm(batch)
+        m, q = batch.mean(axis=0), (batch**2).mean(axis=0)
+        mean, square = (m, q) if mean is None else (mean + 0.1 * (m - mean), square + 0.1 * (q - square))
+        np.testing.assert_allclose(norm.mean, mean, rtol=1e-12)
+        np.testing.assert_allclose(out[:, 0], (batch[:, 0] - mean[0]) / np.sqrt(square[0] - mean[0] ** 2), rtol=1e-9)
+        np.testing.assert_allclose(out[:, 1], (batch[:, 1] - mean[1]) / 0.01, rtol=1e-9)
+    assert norm.updates == 300 and norm.std[0] == pytest.approx(0.3, rel=0.05)
+    frozen = norm.mean.copy()
+    norm(rng.normal(size=(100, 2)), training=False)  # a diagnostic read changes nothing
+    np.testing.assert_array_equal(norm.mean, frozen)
+    centre = BonusNormalizer("center")
+    assert np.all(centre(np.full((8, 1), 0.8)) == 0.0) and np.all(centre(np.full((8, 1), 0.8)) == 0.0)
+
+
+def test_normalized_count_bonus_has_no_offset_and_survives_save_and_load(tmp_path):
+    model = make_model(MACB(beta=0.8, k=16, normalize="center", normalize_rate=0.05))
+    model.learn(200)
+    norm = model.exploration.normalizer
+    assert norm.updates == 190 and 0 < norm.mean[0] < 1  # repeated codes: 1 / sqrt(n) below 1 on average
+    keys = model.replay_buffer.hash_keys[:150, 0, :1]
+    bonus = model.exploration.bonus(keys, training=False)
+    assert abs(float(bonus.mean())) < 0.2 and bonus.min() < 0 < bonus.max()  # both signs: centred, not shifted
+    model.save(tmp_path / "m.zip")
+    loaded = MADDPG.load(tmp_path / "m.zip", env=make_joint_env(Rendezvous()))
+    assert loaded.exploration.config == model.exploration.config
+    assert loaded.exploration.normalizer.updates == 190
+    np.testing.assert_array_equal(loaded.exploration.normalizer.mean, norm.mean)
+    np.testing.assert_array_equal(loaded.exploration.normalizer.mean_square, norm.mean_square)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(normalize="mean"), "normalize must be one of"),
+        (dict(normalize="zscore", normalize_rate=0.0), "normalize_rate"),
+        (dict(normalize="zscore", std_floor=-1.0), "std_floor"),
+        (dict(beta=lambda progress: progress - 0.5), "a beta schedule must give a finite number >= 0"),
+    ],
+)
+def test_bad_normalisation_and_schedule_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        MACB(**kwargs)
+
+
+def test_a_scheduled_beta_follows_the_progress_of_training():
+    from rl_zoo3.utils import linear_schedule
+
+    model = make_model(MACB(beta=linear_schedule(0.8), counts=False), learning_starts=10)
+    seen = []
+    original = model.exploration.bonus
+
+    def record(keys, training=True):
+        bonus = original(keys, training)
+        seen.append(float(bonus[0, 0]))
+        return bonus
+
+    model.exploration.bonus = record
+    model.learn(110)
+    # progress remaining 1 - t / 110 at update t (steps 10..109): beta 0.8 * that
+    assert seen[0] == pytest.approx(0.8 * (1 - 11 / 110), abs=1e-6)
+    assert seen[-1] == pytest.approx(0.8 * (1 - 110 / 110), abs=1e-6)
+    assert all(a > b for a, b in zip(seen, seen[1:]))

@@ -1,4 +1,5 @@
 from sb3_macb.exploration.count_table import CountTable
 from sb3_macb.exploration.macb import MACB, SimHash
+from sb3_macb.exploration.normalize import BonusNormalizer
 
-__all__ = ["MACB", "CountTable", "SimHash"]
+__all__ = ["MACB", "BonusNormalizer", "CountTable", "SimHash"]

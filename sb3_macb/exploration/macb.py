@@ -1,13 +1,14 @@
 """MACB: Multi-Agent Count-Based exploration with SimHash (the paper's section 4 and Algorithm 1)."""
 
 import inspect
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch as th
 
 from sb3_macb.envs.joint_env import AgentLayout
 from sb3_macb.exploration.count_table import CountTable, fold_words
+from sb3_macb.exploration.normalize import NORMALIZE_MODES, BonusNormalizer
 
 SCOPES = ("joint", "local", "state")
 
@@ -48,7 +49,8 @@ class MACB:
     Pass it to MADDPG as ``exploration=MACB(...)`` (or a dict of these arguments). After training it holds the
     count tables: ``num_codes``, ``total_count`` and ``count1_fraction``.
 
-    :param beta: Bonus coefficient (>= 0).
+    :param beta: Bonus coefficient (>= 0), or a schedule: a function of the progress remaining (1 at the start of
+        ``learn``, 0 at its end) giving it, as SB3's learning-rate schedules are (e.g. ``rl_zoo3.utils.linear_schedule``).
     :param k: Length of the SimHash code in bits (>= 1).
     :param scope: What is counted. ``"joint"``: all agents' observations and actions in one table shared by all
         agents (the paper's MACB(s, x)); ``"local"``: one table per agent over its own observation and action,
@@ -57,25 +59,51 @@ class MACB:
     :param decimals: Round observations and actions to this many decimals before hashing (None: no rounding).
     :param counts: False gives the constant-bonus control: every sampled transition gets exactly ``beta``, nothing
         is hashed or counted. It separates what counting contributes from what a reward offset does.
+    :param normalize: How the bonus enters the update. None: ``beta / sqrt(n)`` as the paper adds it. ``"center"``:
+        ``beta * (u - m)`` with ``u = 1 / sqrt(n)`` and ``m`` its running mean over sampled minibatches, so that the
+        bonus carries no reward offset (a constant bonus becomes exactly zero: plain MADDPG). ``"zscore"``: also
+        divided by the running standard deviation (at least ``std_floor``). See
+        :class:`~sb3_macb.exploration.normalize.BonusNormalizer` for the estimator.
+    :param normalize_rate: Weight of each sampled minibatch in the running statistics, in (0, 1].
+    :param std_floor: The smallest standard deviation ``"zscore"`` divides by (in units of ``1 / sqrt(n)``).
     """
 
     def __init__(
         self,
-        beta: float = 0.8,
+        beta: float | Callable[[float], float] = 0.8,
         k: int = 512,
         scope: str = "joint",
         seed: int | None = None,
         decimals: int | None = 2,
         counts: bool = True,
+        normalize: str | None = None,
+        normalize_rate: float = 0.01,
+        std_floor: float = 0.01,
     ):
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
             raise ValueError(f"MACB: k (the hash code length) must be an integer >= 1, got {k!r}")
+        if callable(beta):
+            for progress in (1.0, 0.0):
+                value = beta(progress)
+                if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value) or value < 0:
+                    raise ValueError(f"MACB: a beta schedule must give a finite number >= 0, gave {value!r} at progress {progress}")
+        else:
+            try:
+                beta = float(beta)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"MACB: beta must be a number >= 0 or a schedule, got {beta!r}") from exc
+            if not np.isfinite(beta) or beta < 0:
+                raise ValueError(f"MACB: beta must be a finite number >= 0, got {beta!r}")
+        if normalize not in NORMALIZE_MODES:
+            raise ValueError(f"MACB: normalize must be one of {NORMALIZE_MODES}, got {normalize!r}")
         try:
-            beta = float(beta)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"MACB: beta must be a number >= 0, got {beta!r}") from exc
-        if not np.isfinite(beta) or beta < 0:
-            raise ValueError(f"MACB: beta must be a finite number >= 0, got {beta!r}")
+            self.normalizer = BonusNormalizer(normalize, normalize_rate, std_floor) if normalize is not None else None
+        except ValueError as exc:
+            raise ValueError(f"MACB: {exc}") from None
+        self.normalize = normalize
+        self.normalize_rate = float(normalize_rate)
+        self.std_floor = float(std_floor)
+        self.progress_remaining = 1.0  # set by MADDPG before each round of updates
         if scope not in SCOPES:
             raise ValueError(f"MACB: unknown scope {scope!r}; expected one of {SCOPES}")
         if decimals is not None and (not isinstance(decimals, (int, np.integer)) or decimals < 0):
@@ -108,7 +136,19 @@ class MACB:
 
     def __repr__(self) -> str:
         extra = "" if self.counts else ", counts=False"
+        if self.normalize is not None:
+            extra += f", normalize={self.normalize!r}, normalize_rate={self.normalize_rate}, std_floor={self.std_floor}"
         return f"MACB(beta={self.beta}, k={self.k}, scope={self.scope!r}, seed={self.seed}, decimals={self.decimals}{extra})"
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # MACBs pickled by sb3_macb < 0.10 predate normalisation and schedules
+        defaults = {"normalize": None, "normalize_rate": 0.01, "std_floor": 0.01, "normalizer": None, "progress_remaining": 1.0}
+        self.__dict__.update({**defaults, **state})
+
+    @property
+    def current_beta(self) -> float:
+        """beta now: the number, or the schedule's value at ``progress_remaining``."""
+        return float(self.beta(self.progress_remaining)) if callable(self.beta) else self.beta
 
     # --- setup and state ---------------------------------------------------------------------------------------
 
@@ -179,22 +219,30 @@ class MACB:
         for i, table in enumerate(self.tables):
             table.add(keys[:, i])
 
-    def bonus(self, keys: np.ndarray) -> np.ndarray:
+    def bonus(self, keys: np.ndarray, training: bool = True) -> np.ndarray:
         """
-        ``beta / sqrt(n)`` for each key, from the current counts (counting nothing).
+        The bonus of each key from the current counts (counting nothing): ``beta / sqrt(n)``, or with ``normalize``
+        ``beta`` times the normalised ``1 / sqrt(n)``.
 
-        :param keys: (n, n_tables) keys of counted transitions.
+        :param keys: (n, n_tables) keys of counted transitions (one sampled minibatch).
+        :param training: Take this minibatch into the normalisation statistics (what the replay buffer does when it
+            samples for an update); False only reads them.
         :return: (n, n_tables) float32.
         """
-        if not self.counts:
-            return np.full((len(keys), self.n_tables), self.beta, dtype=np.float32)
-        counts = np.stack([table.lookup(keys[:, i]) for i, table in enumerate(self.tables)], axis=1)
-        if np.any(counts == 0):
-            raise RuntimeError(
-                "MACB: a sampled transition's hash code is not in the count table. The replay buffer and the count "
-                "table do not belong together (was the buffer loaded from a different model or MACB setting?)"
-            )
-        return (self.beta / np.sqrt(counts)).astype(np.float32)
+        beta = self.current_beta
+        if self.counts:
+            counts = np.stack([table.lookup(keys[:, i]) for i, table in enumerate(self.tables)], axis=1)
+            if np.any(counts == 0):
+                raise RuntimeError(
+                    "MACB: a sampled transition's hash code is not in the count table. The replay buffer and the count "
+                    "table do not belong together (was the buffer loaded from a different model or MACB setting?)"
+                )
+        if self.normalizer is None:
+            if not self.counts:
+                return np.full((len(keys), self.n_tables), beta, dtype=np.float32)
+            return (beta / np.sqrt(counts)).astype(np.float32)
+        unscaled = 1.0 / np.sqrt(counts) if self.counts else np.ones((len(keys), self.n_tables))
+        return (beta * self.normalizer(unscaled, training)).astype(np.float32)
 
     # --- statistics (the paper's Table 1 column) ---------------------------------------------------------------
 
@@ -230,7 +278,11 @@ class MACB:
     def config(self) -> dict[str, Any]:
         """The settings, as plain values (what ``MACB(**config)`` takes)."""
         config = {"beta": self.beta, "k": self.k, "scope": self.scope, "seed": self.seed, "decimals": self.decimals}
-        return config if self.counts else {**config, "counts": False}
+        if not self.counts:
+            config["counts"] = False
+        if self.normalize is not None:
+            config.update(normalize=self.normalize, normalize_rate=self.normalize_rate, std_floor=self.std_floor)
+        return config
 
     def state_dict(self) -> dict[str, th.Tensor]:
         """The hash matrices and count tables as tensors (saved in the model's zip file, as SB3 saves modules)."""
@@ -245,6 +297,8 @@ class MACB:
             tensors[f"total_{i}"] = th.tensor(table.total_count, dtype=th.int64)
         if not self.counts:
             tensors["constant_total"] = th.tensor(self._constant_total, dtype=th.int64)
+        if self.normalizer is not None:
+            tensors.update({f"normalizer.{name}": t for name, t in self.normalizer.state_dict().items()})
         return tensors
 
     def load_state_dict(self, state: dict[str, th.Tensor], strict: bool = True) -> None:
@@ -260,6 +314,8 @@ class MACB:
         expected = {f"{name}_{i}" for i in range(len(self.tables)) for name in names}
         if not self.counts:
             expected = {"constant_total"}
+        if self.normalizer is not None:
+            expected |= {"normalizer.mean", "normalizer.mean_square", "normalizer.updates"}
         if set(state) != expected:
             raise ValueError(f"MACB: the saved count state does not match {self} (tables: {self.n_tables})")
         for i, h in enumerate(self.hashes):
@@ -278,3 +334,5 @@ class MACB:
             self.tables[i] = table
         if not self.counts:
             self._constant_total = int(state["constant_total"])
+        if self.normalizer is not None:
+            self.normalizer.load_state_dict({name[len("normalizer.") :]: t for name, t in state.items() if name.startswith("normalizer.")})

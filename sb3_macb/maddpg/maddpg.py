@@ -516,6 +516,9 @@ class MADDPG(TD3):
             gradient_steps //= self.n_runs
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        for exploration in self.explorations:  # a scheduled beta follows training as the learning rate does
+            if exploration is not None:
+                exploration.progress_remaining = self._current_progress_remaining
         assert self._run_rngs is not None
         actor_losses, critic_losses = [], []
         for _ in range(gradient_steps):

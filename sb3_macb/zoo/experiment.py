@@ -25,7 +25,7 @@ import sys
 import time
 from copy import deepcopy
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch as th
@@ -289,7 +289,9 @@ def check_values(hyperparams: dict[str, Any], where: str) -> None:
     number("target_policy_noise", 0.0, allowed="a number >= 0")
     number("target_noise_clip", 0.0, allowed="a number >= 0")
     number("n_timesteps", 1, allowed="a number >= 1")
-    if not isinstance(hyperparams.get("learning_rate", 1e-3), str):
+    if isinstance(hyperparams.get("learning_rate"), str):
+        linear_schedule_of(hyperparams["learning_rate"], f"{where}: 'learning_rate'", low_open=True)
+    else:
         number("learning_rate", 0.0, low_open=True, allowed="a number > 0 or 'lin_<number>'")
     train_freq = hyperparams.get("train_freq", 1)
     steps = train_freq[0] if isinstance(train_freq, (list, tuple)) and len(train_freq) == 2 else train_freq
@@ -306,10 +308,38 @@ def check_values(hyperparams: dict[str, Any], where: str) -> None:
     if exploration is not None:
         from sb3_macb.exploration.macb import MACB
 
+        exploration = exploration_with_schedules(exploration, where)
         try:
             MACB.from_config(exploration)
         except (TypeError, ValueError) as exc:
             raise ExperimentError(f"{where}: 'exploration': {exc}") from None
+
+
+def linear_schedule_of(value: str, where: str, low_open: bool = False) -> Callable[[float], float]:
+    """
+    rl_zoo3's string form of a linear schedule, ``lin_<number>`` (from the number down to 0 over training), parsed
+    without evaluating anything.
+
+    :param value: The string.
+    :param where: What the value is, for the error message.
+    :param low_open: Whether the number must be > 0 (else >= 0).
+    """
+    from rl_zoo3.utils import linear_schedule
+
+    try:
+        start = float(value[4:]) if value.startswith("lin_") else None
+    except ValueError:
+        start = None
+    if start is None or not np.isfinite(start) or (start <= 0 if low_open else start < 0):
+        raise ExperimentError(f"{where} must be a number {'> 0' if low_open else '>= 0'} or 'lin_<number>', got {value!r}")
+    return linear_schedule(start)
+
+
+def exploration_with_schedules(exploration: Any, where: str) -> Any:
+    """The exploration setting with a ``lin_<number>`` beta turned into its schedule (other values as given)."""
+    if isinstance(exploration, dict) and isinstance(exploration.get("beta"), str):
+        return {**exploration, "beta": linear_schedule_of(exploration["beta"], f"{where}: 'exploration.beta'")}
+    return exploration
 
 
 def valid_device(device: Any) -> bool:
@@ -348,14 +378,14 @@ def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict
     kwargs = {k: v for k, v in hyperparams.items() if k not in dropped}
     for key, value in list(kwargs.items()):
         if isinstance(value, str) and key not in ("device",):
-            if key == "learning_rate" and value.startswith("lin_"):
-                from rl_zoo3.utils import linear_schedule
-
-                kwargs[key] = linear_schedule(float(value[4:]))
+            if key == "learning_rate":
+                kwargs[key] = linear_schedule_of(value, "hyperparameter 'learning_rate'", low_open=True)
             elif key == "replay_buffer_class" and not unsafe_eval:
                 raise ExperimentError(f"hyperparameter '{key}' names a class as a string, which would be evaluated; {UNSAFE_HINT}")
             else:
                 kwargs[key] = evaluate_string(value, f"hyperparameter '{key}'", unsafe_eval)
+    if "exploration" in kwargs:
+        kwargs["exploration"] = exploration_with_schedules(kwargs["exploration"], "hyperparameter")
     if isinstance(kwargs.get("train_freq"), list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     policy_kwargs = kwargs.get("policy_kwargs")
@@ -629,7 +659,7 @@ class Experiment:
         cfg = self.config
         runs = cfg.runs
         kwargs = model_kwargs(runs[0].hyperparams, cfg.unsafe_eval)
-        explorations = [r.hyperparams.get("exploration") for r in runs]
+        explorations = [exploration_with_schedules(r.hyperparams.get("exploration"), r.folder) for r in runs]
         kwargs.pop("exploration", None)
         env = make_task_vec_env(cfg.env_id, self.n_runs * self.n_envs, cfg.env_kwargs)
         action_dim = int(np.prod(env.action_space.shape))
