@@ -40,7 +40,7 @@ root, tag, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
 hp = [load_hyperparams("{env}", variants=v) for v in (["fast"], ["maddpg", "fast"])]
 for h in hp:  # (a buffer of 300: it wraps before and after the checkpoint a kill resumes from)
     h.update(policy_kwargs="dict(net_arch=[32, 32])", batch_size=16, buffer_size=300)
-hp[0]["exploration"] = dict(beta="lin_0.8", k=512, normalize="zscore")  # a schedule and running statistics
+hp[0]["exploration"] = dict(beta="lin_0.8", k=16, normalize="zscore", table="sketch", sketch_width=101)  # all state
 runs = [RunConfig(seed=s, folder=f"{{root}}/{{tag}}/run_{{s}}", hyperparams=h) for s, h in zip((0, 1), hp)]
 config = ExperimentConfig("{env}", runs, n_timesteps=steps)
 Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0).run(resume=len(sys.argv) > 4)

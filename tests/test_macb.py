@@ -367,3 +367,51 @@ def test_a_scheduled_beta_follows_the_progress_of_training():
     assert seen[0] == pytest.approx(0.8 * (1 - 11 / 110), abs=1e-6)
     assert seen[-1] == pytest.approx(0.8 * (1 - 110 / 110), abs=1e-6)
     assert all(a > b for a, b in zip(seen, seen[1:]))
+
+
+# --- the count-min sketch ------------------------------------------------------------------------------------------
+
+
+def test_count_min_sketch_never_undercounts_and_is_exact_when_wide():
+    from sb3_macb.exploration.count_min import CountMinSketch
+
+    rng = np.random.default_rng(0)
+    narrow, wide, exact, reference = CountMinSketch(3, 50), CountMinSketch(4, 1 << 20), CountTable(), Counter()
+    for _ in range(400):
+        keys = rng.integers(1, 2**63, size=rng.integers(1, 4)).astype(np.uint64)
+        keys = np.concatenate([keys, keys[:1], rng.choice(np.fromiter(reference, np.uint64), 1)]) if reference else keys
+        for table in (narrow, wide, exact):
+            table.add(keys)
+        reference.update(keys.tolist())
+    probe = np.fromiter(reference, dtype=np.uint64)
+    truth = np.array([reference[int(k)] for k in probe])
+    assert np.all(narrow.lookup(probe) >= truth) and np.any(narrow.lookup(probe) > truth)  # collisions: over, never under
+    np.testing.assert_array_equal(wide.lookup(probe), truth)
+    assert (wide.num_codes, wide.num_count1, wide.total_count) == (exact.num_codes, exact.num_count1, exact.total_count)
+    assert narrow.total_count == exact.total_count and narrow.nbytes == 4 * sum(narrow.widths.tolist())
+    assert list(narrow.widths) == [53, 59, 61]  # the next primes at or above the width, all different
+    assert wide.lookup(np.array([12345], dtype=np.uint64))[0] == 0
+
+
+def test_macb_with_a_sketch_gives_at_most_the_exact_bonus_and_saves(tmp_path):
+    exact = make_model(MACB(beta=0.8, k=16, decimals=None), learning_starts=10_000)
+    sketch = make_model(MACB(beta=0.8, k=16, decimals=None, table="sketch", sketch_depth=2, sketch_width=7), learning_starts=10_000)
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        t = (rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3), [0.0, 0.0])
+        add(exact.replay_buffer, *t)
+        add(sketch.replay_buffer, *t)
+    indices = np.arange(200)
+    ours = sketch.replay_buffer._get_samples(indices).rewards.cpu().numpy()
+    theirs = exact.replay_buffer._get_samples(indices).rewards.cpu().numpy()
+    assert np.all(ours <= theirs + 1e-7) and np.any(ours < theirs - 1e-3)  # narrow: some codes overcounted
+    assert sketch.exploration.nbytes == 4 * (7 + 11)
+    sketch.save(tmp_path / "m.zip")
+    loaded = MADDPG.load(tmp_path / "m.zip", env=make_joint_env(Rendezvous()))
+    assert loaded.exploration.config == sketch.exploration.config
+    np.testing.assert_array_equal(loaded.exploration.tables[0].counts, sketch.exploration.tables[0].counts)
+    assert (loaded.exploration.num_codes, loaded.exploration.total_count) == (sketch.exploration.num_codes, 200)
+    with pytest.raises(ValueError, match="sketch_depth must be an integer >= 1"):
+        MACB(table="sketch", sketch_depth=0)
+    with pytest.raises(ValueError, match="table must be one of"):
+        MACB(table="bloom")

@@ -37,8 +37,8 @@ def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision=
 
 
 def settings():
-    # the paper's form, none, per-agent counts normalised, and a constant bonus whose beta falls over training
-    return [MACB(0.8, 64), None, MACB(0.8, 512, scope="local", normalize="zscore"), MACB(linear_schedule(0.8), counts=False)]
+    # the paper's form, none, per-agent counts in narrow sketches normalised, and a constant bonus whose beta falls over training
+    return [MACB(0.8, 64), None, MACB(0.8, 512, scope="local", normalize="zscore", table="sketch", sketch_width=101), MACB(linear_schedule(0.8), counts=False)]
 
 
 @pytest.mark.parametrize("net_arch", [(32, 32), (128, 96)], ids=["batched-small-layers", "per-group-large-layers"])

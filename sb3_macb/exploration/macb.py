@@ -7,10 +7,12 @@ import numpy as np
 import torch as th
 
 from sb3_macb.envs.joint_env import AgentLayout
+from sb3_macb.exploration.count_min import CountMinSketch
 from sb3_macb.exploration.count_table import CountTable, fold_words
 from sb3_macb.exploration.normalize import NORMALIZE_MODES, BonusNormalizer
 
 SCOPES = ("joint", "local", "state")
+TABLES = ("exact", "sketch")
 
 
 class SimHash:
@@ -66,6 +68,12 @@ class MACB:
         :class:`~sb3_macb.exploration.normalize.BonusNormalizer` for the estimator.
     :param normalize_rate: Weight of each sampled minibatch in the running statistics, in (0, 1].
     :param std_floor: The smallest standard deviation ``"zscore"`` divides by (in units of ``1 / sqrt(n)``).
+    :param table: ``"exact"``: a hash table that counts every code exactly and grows with them (16-32 bytes per
+        code). ``"sketch"``: a count-min sketch (:class:`~sb3_macb.exploration.count_min.CountMinSketch`) of
+        ``sketch_depth`` rows of about ``sketch_width`` counters, memory fixed in advance (4 bytes per counter);
+        its counts are never below the true ones, so its bonus is never above the exact table's.
+    :param sketch_depth: Rows of the sketch.
+    :param sketch_width: Counters per row of the sketch (each row the next prime at or above it).
     """
 
     def __init__(
@@ -79,6 +87,9 @@ class MACB:
         normalize: str | None = None,
         normalize_rate: float = 0.01,
         std_floor: float = 0.01,
+        table: str = "exact",
+        sketch_depth: int = 4,
+        sketch_width: int = 1_000_003,
     ):
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
             raise ValueError(f"MACB: k (the hash code length) must be an integer >= 1, got {k!r}")
@@ -104,6 +115,18 @@ class MACB:
         self.normalize_rate = float(normalize_rate)
         self.std_floor = float(std_floor)
         self.progress_remaining = 1.0  # set by MADDPG before each round of updates
+        if table not in TABLES:
+            raise ValueError(f"MACB: table must be one of {TABLES}, got {table!r}")
+        if table == "sketch":
+            try:
+                CountMinSketch(sketch_depth, 2)  # checks the depth; the width is checked below
+            except ValueError as exc:
+                raise ValueError(f"MACB: {exc}") from None
+            if isinstance(sketch_width, bool) or not isinstance(sketch_width, (int, np.integer)) or not 2 <= sketch_width <= 1 << 28:
+                raise ValueError(f"MACB: sketch_width must be an integer in [2, 2**28], got {sketch_width!r}")
+        self.table = table
+        self.sketch_depth = int(sketch_depth)
+        self.sketch_width = int(sketch_width)
         if scope not in SCOPES:
             raise ValueError(f"MACB: unknown scope {scope!r}; expected one of {SCOPES}")
         if decimals is not None and (not isinstance(decimals, (int, np.integer)) or decimals < 0):
@@ -117,7 +140,7 @@ class MACB:
         self.decimals = decimals
         self.counts = bool(counts)
         self.hashes: list[SimHash] = []
-        self.tables: list[CountTable] = []
+        self.tables: list[CountTable | CountMinSketch] = []
         self._layout: AgentLayout | None = None
         self._constant_total = 0  # transitions seen by the constant-bonus control
 
@@ -138,11 +161,14 @@ class MACB:
         extra = "" if self.counts else ", counts=False"
         if self.normalize is not None:
             extra += f", normalize={self.normalize!r}, normalize_rate={self.normalize_rate}, std_floor={self.std_floor}"
+        if self.table != "exact":
+            extra += f", table={self.table!r}, sketch_depth={self.sketch_depth}, sketch_width={self.sketch_width}"
         return f"MACB(beta={self.beta}, k={self.k}, scope={self.scope!r}, seed={self.seed}, decimals={self.decimals}{extra})"
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # MACBs pickled by sb3_macb < 0.10 predate normalisation and schedules
-        defaults = {"normalize": None, "normalize_rate": 0.01, "std_floor": 0.01, "normalizer": None, "progress_remaining": 1.0}
+        defaults = {"normalize": None, "normalize_rate": 0.01, "std_floor": 0.01, "normalizer": None, "progress_remaining": 1.0,
+                    "table": "exact", "sketch_depth": 4, "sketch_width": 1_000_003}  # fmt: skip
         self.__dict__.update({**defaults, **state})
 
     @property
@@ -185,7 +211,10 @@ class MACB:
         if not self.counts:
             dims = []  # the constant-bonus control hashes and counts nothing
         self.hashes = [SimHash(self.k, dim, rng, self.decimals) for dim in dims]
-        self.tables = [CountTable() for _ in dims]
+        self.tables = [self._new_table() for _ in dims]
+
+    def _new_table(self) -> "CountTable | CountMinSketch":
+        return CountMinSketch(self.sketch_depth, self.sketch_width) if self.table == "sketch" else CountTable()
 
     def _require_setup(self) -> None:
         if not self.is_setup:
@@ -282,6 +311,8 @@ class MACB:
             config["counts"] = False
         if self.normalize is not None:
             config.update(normalize=self.normalize, normalize_rate=self.normalize_rate, std_floor=self.std_floor)
+        if self.table != "exact":
+            config.update(table=self.table, sketch_depth=self.sketch_depth, sketch_width=self.sketch_width)
         return config
 
     def state_dict(self) -> dict[str, th.Tensor]:
@@ -292,6 +323,11 @@ class MACB:
             # the slot arrays as they are (views, no copy): loading adopts them without re-inserting every code
             arrays = table.arrays()
             tensors[f"matrix_{i}"] = th.from_numpy(h.matrix_t.copy())
+            if isinstance(table, CountMinSketch):
+                tensors[f"sketch_counts_{i}"] = th.from_numpy(arrays["counts"].view(np.int32))
+                tensors[f"sketch_widths_{i}"] = th.from_numpy(arrays["widths"])
+                tensors[f"sketch_stats_{i}"] = th.from_numpy(arrays["stats"])
+                continue
             tensors[f"slots_{i}"] = th.from_numpy(arrays["keys"].view(np.int64))
             tensors[f"slot_counts_{i}"] = th.from_numpy(arrays["counts"].view(np.int32))
             tensors[f"total_{i}"] = th.tensor(table.total_count, dtype=th.int64)
@@ -311,6 +347,8 @@ class MACB:
         self._require_setup()
         compact = any(key.startswith("keys_") for key in state)  # written by sb3_macb < 0.8: occupied entries only
         names = ("matrix", "keys", "counts", "total") if compact else ("matrix", "slots", "slot_counts", "total")
+        if self.table == "sketch":
+            names = ("matrix", "sketch_counts", "sketch_widths", "sketch_stats")
         expected = {f"{name}_{i}" for i in range(len(self.tables)) for name in names}
         if not self.counts:
             expected = {"constant_total"}
@@ -323,7 +361,13 @@ class MACB:
             if matrix.shape != h.matrix_t.shape:
                 raise ValueError(f"MACB: saved hash matrix has shape {matrix.shape}, expected {h.matrix_t.shape}")
             h.matrix_t = matrix.astype(np.float32)
-            if compact:
+            if self.table == "sketch":
+                table: CountTable | CountMinSketch = CountMinSketch.from_arrays(
+                    state[f"sketch_counts_{i}"].cpu().numpy().view(np.uint32),
+                    state[f"sketch_widths_{i}"].cpu().numpy(),
+                    state[f"sketch_stats_{i}"].cpu().numpy(),
+                )
+            elif compact:
                 keys = state[f"keys_{i}"].cpu().numpy().view(np.uint64)
                 table = CountTable.from_state(keys, state[f"counts_{i}"].cpu().numpy())
                 table.total_count = int(state[f"total_{i}"])
