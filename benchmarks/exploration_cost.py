@@ -1,0 +1,91 @@
+"""
+What each exploration estimator adds to a step of training, as a share of one MADDPG update, on the paper's task
+(sparse Communicative Navigation, batch 100, one update per step) at 64-64 and 400-300 networks.
+
+    python benchmarks/exploration_cost.py                 # tables of 8e5 codes, as at the end of a paper run
+    python benchmarks/exploration_cost.py --codes 1e5 --updates 100
+
+Per step, an estimator hashes and counts the collected transition (``keys`` + ``count``) and gives the bonus of a
+sampled minibatch (``bonus``, with its normalisation). Both are timed on an estimator whose table already holds
+``--codes`` codes, in the same process as the update they are compared with (a plain MADDPG update, medians of
+interleaved blocks). Targets (issue 28): counts at most 10% of an update at 400-300. The last line:
+``exploration_cost: <setting>@<net>=<percent> ...``.
+"""
+
+import argparse
+import time
+
+import numpy as np
+import torch as th
+
+from sb3_macb import MACB, MADDPG
+from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+COMM = "sb3_macb/CommunicativeNavigation-v0"
+SETTINGS = {
+    "exact": dict(),
+    "exact+center": dict(normalize="center"),
+    "exact+zscore": dict(normalize="zscore"),
+    "sketch": dict(table="sketch"),
+    "constant": dict(counts=False),
+}
+
+
+def median_us(fn, calls: int, blocks: int = 7) -> float:
+    """Median over ``blocks`` of the mean time of ``calls`` calls, in microseconds."""
+    times = []
+    for _ in range(blocks):
+        start = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        times.append((time.perf_counter() - start) / calls * 1e6)
+    return float(np.median(times))
+
+
+def estimator_us(model: MADDPG, kwargs: dict, codes: int, calls: int) -> float:
+    """One step's estimator work (count one transition, bonus of one minibatch) with ``codes`` codes counted."""
+    macb = MACB(beta=0.8, k=512, **kwargs)
+    macb.setup(model.agent_layout, seed=0)
+    rng = np.random.default_rng(0)
+    if macb.counts:
+        for table in macb.tables:  # fill with random keys as a long run would have them (almost all new at k 512)
+            table.add(rng.integers(1, 2**63, size=codes, dtype=np.uint64))
+    buffer = model.replay_buffer
+    n = buffer.pos
+    obs, actions = buffer.observations[:n, 0], buffer.actions[:n, 0]
+    stored = macb.keys(obs, actions)
+    macb.count(stored)
+    step = [0]
+
+    def one_step() -> None:
+        i = step[0] % n
+        step[0] += 1
+        macb.count(macb.keys(obs[i : i + 1], actions[i : i + 1]))
+        macb.bonus(stored[rng.integers(0, n, size=100)])
+
+    return median_us(one_step, calls)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--codes", type=float, default=8e5, help="codes in each table before timing")
+    parser.add_argument("--updates", type=int, default=50, help="updates (and estimator steps) per timed block")
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    summary = []
+    for net in ([64, 64], [400, 300]):
+        model = MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), batch_size=100, learning_starts=2000,
+                       policy_kwargs=dict(net_arch=net), seed=0)  # fmt: skip
+        model.learn(2100)  # a buffer to sample from, and optimizer state
+        update = median_us(lambda: model.train(1, 100), args.updates)
+        name = "-".join(map(str, net))
+        print(f"{name}: one MADDPG update {update / 1000:.2f} ms")
+        for setting, kwargs in SETTINGS.items():
+            cost = estimator_us(model, kwargs, int(args.codes), args.updates)
+            print(f"  {setting:13s} {cost:8.1f} us per step = {100 * cost / update:5.1f}% of an update")
+            summary.append(f"{setting}@{name}={100 * cost / update:.1f}")
+    print("exploration_cost: " + " ".join(summary))
+
+
+if __name__ == "__main__":
+    main()
