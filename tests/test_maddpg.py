@@ -541,3 +541,21 @@ def test_preactivation_reg_is_each_agents_mean_square_and_pulls_saturated_actors
     assert after > 0.9 * before  # without the penalty the saturated outputs stay (here they grow)
     before, after = saturate_then_train(1e-2)
     assert after < 0.5 * before
+
+
+def test_matd3_is_maddpg_with_td3_defaults(tmp_path):
+    from sb3_macb import MATD3
+
+    env = make_joint_env(Rendezvous())
+    ours = MATD3("MlpPolicy", env, policy_kwargs=SMALL, learning_starts=10, batch_size=16, action_noise=noise(), seed=0)
+    assert (ours.policy_delay, ours.target_policy_noise, ours.target_noise_clip, ours.policy.n_critics) == (2, 0.2, 0.5, 2)
+    theirs = MADDPG("MlpPolicy", env, policy_kwargs={**SMALL, "n_critics": 2}, policy_delay=2, target_policy_noise=0.2,
+                    learning_starts=10, batch_size=16, action_noise=noise(), seed=0)  # fmt: skip
+    ours.learn(60)
+    theirs.learn(60)
+    for a, b in zip(ours.policy.state_dict().values(), theirs.policy.state_dict().values()):
+        assert th.equal(a, b)
+    ours.save(tmp_path / "matd3")
+    loaded = MATD3.load(tmp_path / "matd3", env=env)
+    assert type(loaded) is MATD3 and loaded.policy.n_critics == 2 and loaded.policy_delay == 2
+    assert MATD3("MlpPolicy", env, policy_kwargs=dict(n_critics=3)).policy.n_critics == 3  # a user's choice is kept
