@@ -19,7 +19,8 @@ class RunSamples(NamedTuple):
     actions: th.Tensor  # (n_runs, batch, action_dim)
     next_observations: th.Tensor  # (n_runs, batch, obs_dim)
     dones: th.Tensor  # (n_runs, batch): 1 where the episode terminated (time-limit ends excluded)
-    rewards: th.Tensor  # (n_runs, batch, n_agents): each agent's reward (plus MACB's bonus)
+    rewards: th.Tensor  # (n_runs, batch, n_agents): each agent's reward (plus MACB's bonus, unless separate)
+    bonus: th.Tensor | None = None  # (n_runs, batch, n_agents): the bonus alone, when asked for separately
 
 
 class MultiAgentReplayBuffer(ReplayBuffer):
@@ -99,7 +100,9 @@ class MultiAgentReplayBuffer(ReplayBuffer):
             ) from exc
         super().add(obs, next_obs, action, reward, done, infos)
 
-    def sample_runs(self, batch_size: int, rngs: list[np.random.Generator], env: VecNormalize | None = None) -> RunSamples:
+    def sample_runs(
+        self, batch_size: int, rngs: list[np.random.Generator], env: VecNormalize | None = None, separate_bonus: bool = False
+    ) -> RunSamples:
         """
         One minibatch of ``batch_size`` transitions per run, each drawn with the run's own generator from its own
         envs' columns, so that a run samples the same minibatches whether it is trained alone or in a pack.
@@ -107,6 +110,7 @@ class MultiAgentReplayBuffer(ReplayBuffer):
         :param batch_size: Transitions per run.
         :param rngs: One generator per run.
         :param env: VecNormalize wrapper to normalize observations and rewards with, if any.
+        :param separate_bonus: Return the exploration bonus in ``bonus`` instead of adding it to ``rewards``.
         """
         if len(rngs) != self.n_runs:
             raise ValueError(f"Expected one generator per run ({self.n_runs}), got {len(rngs)}")
@@ -119,7 +123,10 @@ class MultiAgentReplayBuffer(ReplayBuffer):
             batch_inds[run] = rng.integers(0, upper, size=batch_size)
             first = run * self.envs_per_run
             env_inds[run] = first if self.envs_per_run == 1 else first + rng.integers(0, self.envs_per_run, size=batch_size)
-        rewards = self.agent_rewards[batch_inds, env_inds] + self._bonus(batch_inds, env_inds)
+        bonus = self._bonus(batch_inds, env_inds)
+        rewards = self.agent_rewards[batch_inds, env_inds]
+        if not separate_bonus:
+            rewards = rewards + bonus
         dones = self.dones[batch_inds, env_inds] * (1 - self.timeouts[batch_inds, env_inds])
         data = (
             self._normalize_obs(self.observations[batch_inds, env_inds], env),
@@ -128,7 +135,11 @@ class MultiAgentReplayBuffer(ReplayBuffer):
             dones,
             self._normalize_reward(rewards, env),
         )
-        return RunSamples(*tuple(map(self.to_torch, data)))
+        samples = RunSamples(*tuple(map(self.to_torch, data)))
+        if separate_bonus:
+            shape = (self.n_runs, batch_size, self.n_agents)
+            samples = samples._replace(bonus=self.to_torch(np.broadcast_to(bonus, shape).astype(np.float32)))
+        return samples
 
     def _bonus(self, batch_inds: np.ndarray, env_inds: np.ndarray) -> np.ndarray | float:
         """Exploration bonus added to sampled rewards: none here (see :class:`MACBReplayBuffer`)."""

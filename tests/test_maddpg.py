@@ -559,3 +559,40 @@ def test_matd3_is_maddpg_with_td3_defaults(tmp_path):
     loaded = MATD3.load(tmp_path / "matd3", env=env)
     assert type(loaded) is MATD3 and loaded.policy.n_critics == 2 and loaded.policy_delay == 2
     assert MATD3("MlpPolicy", env, policy_kwargs=dict(n_critics=3)).policy.n_critics == 3  # a user's choice is kept
+
+
+def test_an_intrinsic_critic_keeps_the_bonus_out_of_the_reward_and_learns_its_return():
+    from sb3_macb import MACB
+
+    env = make_joint_env(Rendezvous())
+    kwargs = dict(policy_kwargs=SMALL, learning_starts=10, batch_size=16, action_noise=noise(), seed=0)
+    plain = MADDPG("MlpPolicy", env, **kwargs)
+    # with weight 0 in the actors' objective the intrinsic critics change nothing else: the bonus is not a reward
+    ours = MADDPG("MlpPolicy", env, exploration=MACB(0.8, 16), intrinsic_critic=True, intrinsic_coef=0.0, **kwargs)
+    plain.learn(210)
+    ours.learn(210)
+    for name in ("actor", "critic"):
+        for a, b in zip(getattr(plain, name).state_dict().values(), getattr(ours, name).state_dict().values()):
+            assert th.allclose(a, b, atol=1e-6, rtol=0), name
+    # a constant bonus of 0.8 with an intrinsic discount of 0: the intrinsic critics learn 0.8 everywhere
+    constant = MADDPG("MlpPolicy", env, exploration=MACB(0.8, counts=False), intrinsic_critic=True, intrinsic_gamma=0.0,
+                      **{**kwargs, "learning_rate": 3e-3})  # fmt: skip
+    constant.learn(410)
+    buffer = constant.replay_buffer
+    obs = th.as_tensor(buffer.observations[:400, 0])
+    actions = th.as_tensor(buffer.actions[:400, 0])
+    with th.no_grad():
+        values = constant.policy.critic_int(obs, actions)
+    assert values.shape[-1] == 400 and float((values - 0.8).abs().mean()) < 0.05
+    # shared networks: the intrinsic critics share as the critics do
+    from mpe2 import simple_spread_v3
+
+    spread = make_joint_env(simple_spread_v3.parallel_env(N=3, continuous_actions=True, max_cycles=10))
+    shared = MADDPG("MlpPolicy", spread, exploration=MACB(0.8, 16), intrinsic_critic=True, share_parameters="all",
+                    share_critics=True, policy_kwargs=SMALL, learning_starts=10, batch_size=16, seed=0)  # fmt: skip
+    shared.learn(60)
+    assert [p.shape for p in shared.policy.critic_int.parameters()] == [p.shape for p in shared.critic.parameters()]
+    with pytest.raises(ValueError, match="intrinsic_critic=True learns an exploration bonus"):
+        MADDPG("MlpPolicy", env, intrinsic_critic=True)
+    with pytest.raises(ValueError, match="intrinsic_gamma must be"):
+        MADDPG("MlpPolicy", env, exploration=MACB(), intrinsic_critic=True, intrinsic_gamma=1.5)

@@ -272,3 +272,31 @@ def test_one_macb_object_given_for_every_run_is_copied_per_run():
     solo = MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), seed=1, exploration=MACB(0.8, 32), learning_starts=10,
                   batch_size=8, policy_kwargs=dict(net_arch=[8]))  # fmt: skip
     assert np.array_equal(solo.exploration.hashes[0].matrix_t, second.hashes[0].matrix_t)
+
+
+def test_an_intrinsic_critic_pack_with_matd3_settings_is_bit_identical_to_its_solo_runs(tmp_path):
+    def make(seeds, explorations):
+        return MADDPG("MlpPolicy", make_task_vec_env(COMM, len(seeds)), n_runs=len(seeds), run_seeds=seeds,
+                      exploration=explorations, intrinsic_critic=True, intrinsic_gamma=0.9, intrinsic_coef=0.5,
+                      policy_kwargs=dict(net_arch=[32, 32], n_critics=2), policy_delay=2, target_policy_noise=0.2,
+                      batch_size=16, buffer_size=50, learning_starts=40 * len(seeds))  # fmt: skip
+
+    settings = [MACB(0.8, 64, normalize="center"), None, MACB(0.8, counts=False)]
+    pack = make([3, 4, 5], settings)
+    pack.learn(3 * 150)  # the buffer of 50 wraps twice
+    for k, (seed, exploration) in enumerate(zip([3, 4, 5], [MACB(0.8, 64, normalize="center"), None, MACB(0.8, counts=False)])):
+        solo = make([seed], [exploration]) if exploration is not None else None
+        if solo is None:  # a run without exploration learns a zero bonus; alone it needs one to have the critic
+            continue
+        solo.learn(150)
+        run = pack.get_run(k)
+        for a, b in zip(run.policy.state_dict().values(), solo.policy.state_dict().values()):
+            assert th.equal(a, b), k
+        ours, theirs = run.policy.critic_int.optimizer.state_dict(), solo.policy.critic_int.optimizer.state_dict()
+        for i in theirs["state"]:
+            assert th.equal(ours["state"][i]["exp_avg_sq"], theirs["state"][i]["exp_avg_sq"])
+    pack.save(tmp_path / "pack")
+    loaded = MADDPG.load(tmp_path / "pack", env=make_task_vec_env(COMM, 3))
+    for a, b in zip(loaded.policy.state_dict().values(), pack.policy.state_dict().values()):
+        assert th.equal(a, b)
+    assert loaded.intrinsic_critic and loaded.intrinsic_gamma == 0.9 and loaded.intrinsic_coef == 0.5

@@ -108,6 +108,14 @@ class MADDPG(TD3):
         stays at the bound (docs/results.md shows this in the 400-300 runs with a reward offset). The penalty pulls
         the outputs back; it does not change a critic that asks for the bound, so it need not revive such a run.
         Discrete agents' logits always get 1e-3, as in the MADDPG paper.
+    :param intrinsic_critic: Learn the exploration bonus with critics of its own (``critic_int``): the critics
+        learn the reward alone, the intrinsic critics learn ``bonus + intrinsic_gamma * Q_int(s', pi'(s'))`` with no
+        episode-end masking (novelty does not end with an episode), and each actor ascends
+        ``Q + intrinsic_coef * Q_int``. The bonus then never enters the reward, so it adds no offset to the critics'
+        values. Needs an exploration setting. Works with MATD3's settings (the smaller target of the intrinsic
+        critics too), sharing and packs.
+    :param intrinsic_gamma: Discount of the intrinsic critics.
+    :param intrinsic_coef: Weight of the intrinsic critics' value in the actors' objective.
     :param _init_setup_model: Whether or not to build the network at the creation of the instance.
     """
 
@@ -152,12 +160,19 @@ class MADDPG(TD3):
         share_critics: bool = False,
         flush_denormal: bool = True,
         preactivation_reg: float = 0.0,
+        intrinsic_critic: bool = False,
+        intrinsic_gamma: float = 0.99,
+        intrinsic_coef: float = 1.0,
         _init_setup_model: bool = True,
     ):
         if isinstance(preactivation_reg, bool) or not isinstance(preactivation_reg, (int, float, np.floating, np.integer)) \
                 or not np.isfinite(preactivation_reg) or preactivation_reg < 0:
             raise ValueError(f"preactivation_reg must be a finite number >= 0, got {preactivation_reg!r}")
-        if policy_kwargs and ({"agent_layout", "centralized_critic", "share_actors", "share_critics"} & set(policy_kwargs)):
+        for name, value, low, high in (("intrinsic_gamma", intrinsic_gamma, 0.0, 1.0), ("intrinsic_coef", intrinsic_coef, 0.0, None)):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or not np.isfinite(value) \
+                    or value < low or (high is not None and value > high):
+                raise ValueError(f"{name} must be a number in [{low}, {high if high is not None else 'inf'}), got {value!r}")
+        if policy_kwargs and ({"agent_layout", "centralized_critic", "share_actors", "share_critics", "intrinsic_critic"} & set(policy_kwargs)):
             raise ValueError(
                 "Pass centralized_critic to MADDPG itself (and share_parameters, share_critics), not in policy_kwargs; "
                 "the agent layout is read from the env"
@@ -197,6 +212,11 @@ class MADDPG(TD3):
         if len(per_run) != n_runs:
             raise ValueError(f"exploration: expected one setting per run ({n_runs}), got {len(per_run)}")
         self.explorations: list[MACB | None] = [MACB.from_config(e) for e in per_run]
+        if intrinsic_critic and all(e is None for e in self.explorations):
+            raise ValueError("intrinsic_critic=True learns an exploration bonus: give exploration=MACB(...) too")
+        self.intrinsic_critic = bool(intrinsic_critic)
+        self.intrinsic_gamma = float(intrinsic_gamma)
+        self.intrinsic_coef = float(intrinsic_coef)
         if isinstance(action_noise, (list, tuple)) and len(action_noise) != n_runs:
             raise ValueError(f"action_noise: expected one per run ({n_runs}), got {len(action_noise)}")
         # (the MACB objects' settings travel in the saved data; their matrices and count tables as a state dict)
@@ -414,6 +434,7 @@ class MADDPG(TD3):
             "run_seeds": self.run_seeds,
             "share_actors": groups,
             "share_critics": groups if self.__dict__.get("share_critics") else None,
+            "intrinsic_critic": self.__dict__.get("intrinsic_critic", False),
         }
         self.replay_buffer_kwargs = {**user_buffer_kwargs, **buffer_extra}
         try:
@@ -429,6 +450,9 @@ class MADDPG(TD3):
         self._actor_target_params = list(self.actor_target.parameters())
         self._critic_params = list(self.critic.parameters())
         self._critic_target_params = list(self.critic_target.parameters())
+        if self.policy.critic_int is not None:  # (the intrinsic critics' targets follow theirs in the same lerp)
+            self._critic_params += list(self.policy.critic_int.parameters())
+            self._critic_target_params += list(self.policy.critic_int_target.parameters())  # type: ignore[union-attr]
         # the joint action's entries of discrete agents (None: every agent is continuous), read at every step
         self._discrete_mask = layout.discrete_action_mask if self.actor.has_discrete else None
         # preactivation_reg's weight of each joint-action component: 1 / its agent's action_dim for continuous
@@ -515,16 +539,20 @@ class MADDPG(TD3):
         if self.gradient_steps < 0:  # SB3 passes the steps of all envs; each run of a pack does its own run's count
             gradient_steps //= self.n_runs
         self.policy.set_training_mode(True)
-        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        critic_int = self.policy.critic_int
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        self._update_learning_rate(optimizers if critic_int is None else [*optimizers, critic_int.optimizer])
         for exploration in self.explorations:  # a scheduled beta follows training as the learning rate does
             if exploration is not None:
                 exploration.progress_remaining = self._current_progress_remaining
         assert self._run_rngs is not None
-        actor_losses, critic_losses = [], []
+        actor_losses, critic_losses, int_losses = [], [], []
         for _ in range(gradient_steps):
             self._n_updates += 1
             # one minibatch per run, each from its own envs with its own generator: (n_runs, batch, ...)
-            data = self.replay_buffer.sample_runs(batch_size, self._run_rngs, env=self._vec_normalize_env)
+            data = self.replay_buffer.sample_runs(
+                batch_size, self._run_rngs, env=self._vec_normalize_env, separate_bonus=critic_int is not None
+            )
             rewards = data.rewards.transpose(1, 2)  # (n_runs, n_agents, batch): each critic learns its own reward
             not_done = 1.0 - data.dones.unsqueeze(1)  # (n_runs, 1, batch)
 
@@ -539,6 +567,10 @@ class MADDPG(TD3):
                 next_q = self.critic_target(data.next_observations, next_actions)  # (n_critics, n_runs, n_agents, batch)
                 next_q = next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0]
                 target_q = rewards + self.gamma * not_done * next_q
+                if critic_int is not None:  # the bonus's return: its own discount, never cut at an episode's end
+                    next_int = self.policy.critic_int_target(data.next_observations, next_actions)  # type: ignore[misc]
+                    next_int = next_int.min(dim=0).values if next_int.shape[0] > 1 else next_int[0]
+                    target_int = data.bonus.transpose(1, 2) + self.intrinsic_gamma * next_int  # type: ignore[union-attr]
 
             current_q = self.critic(data.observations, data.actions)
             # Sum over runs, agents (and critics) of each critic's MSE: the groups' gradients stay separate
@@ -547,6 +579,12 @@ class MADDPG(TD3):
             critic_loss.backward()
             self.critic.optimizer.step()
             critic_losses.append(critic_loss.detach())
+            if critic_int is not None:
+                int_loss = (critic_int(data.observations, data.actions) - target_int).pow(2).mean(dim=-1).sum()
+                critic_int.optimizer.zero_grad(set_to_none=True)
+                int_loss.backward()
+                critic_int.optimizer.step()
+                int_losses.append(int_loss.detach())
 
             if self._n_updates % self.policy_delay == 0:
                 # Agent i's critic sees the buffer actions with agent i's slice replaced by its actor's action
@@ -569,6 +607,8 @@ class MADDPG(TD3):
                 actions = data.actions.unsqueeze(1)
                 mixed = actions + self._action_masks * (pi - actions)  # (n_runs, n_agents, batch, action_dim)
                 q = self.critic.q1_forward(data.observations, mixed, detach_params=True)
+                if critic_int is not None:
+                    q = q + self.intrinsic_coef * critic_int.q1_forward(data.observations, mixed, detach_params=True)
                 actor_loss = -q.mean(dim=-1).sum()
                 if penalty is not None:
                     actor_loss = actor_loss + penalty
@@ -586,6 +626,8 @@ class MADDPG(TD3):
         if actor_losses:
             self.logger.record("train/actor_loss", th.stack(actor_losses).mean().item() / groups)
         self.logger.record("train/critic_loss", th.stack(critic_losses).mean().item() / groups)
+        if int_losses:
+            self.logger.record("train/intrinsic_critic_loss", th.stack(int_losses).mean().item() / groups)
 
     def _preactivation_penalty(self, raw: th.Tensor) -> th.Tensor:
         """
@@ -650,6 +692,8 @@ class MADDPG(TD3):
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
+        if self.__dict__.get("intrinsic_critic"):
+            state_dicts = [*state_dicts, "policy.critic_int.optimizer"]
         if self.n_runs == 1 and self.explorations[0] is not None:
             state_dicts = [*state_dicts, "exploration"]
         elif any(e is not None for e in self.explorations):
@@ -715,12 +759,15 @@ class MADDPG(TD3):
         solo._setup_model()
         if self.explorations[k] is not None:  # the deep copy lost the tables; carry them over
             solo.explorations[0].load_state_dict(self.explorations[k].state_dict())  # type: ignore[union-attr]
+        modules = [("actor", "actor"), ("actor_target", "actor"), ("critic", "critic"), ("critic_target", "critic")]
+        if self.policy.critic_int is not None:
+            modules += [("critic_int", "critic"), ("critic_int_target", "critic")]
         with th.no_grad():
-            for name, module in (("actor", "actor"), ("actor_target", "actor"), ("critic", "critic"), ("critic_target", "critic")):
-                mine, theirs = getattr(self, name).state_dict(), getattr(solo, name).state_dict()
-                getattr(solo, name).load_state_dict({key: self._run_slice(mine[key], module, k) for key in theirs})
-        for name in ("actor", "critic"):
-            opt, solo_opt = getattr(self, name).optimizer, getattr(solo, name).optimizer
+            for name, module in modules:
+                mine, theirs = getattr(self.policy, name).state_dict(), getattr(solo.policy, name).state_dict()
+                getattr(solo.policy, name).load_state_dict({key: self._run_slice(mine[key], module, k) for key in theirs})
+        for name in [m for m, _ in modules if not m.endswith("_target")]:
+            opt, solo_opt = getattr(self.policy, name).optimizer, getattr(solo.policy, name).optimizer
             state = opt.state_dict()
             state["state"] = {
                 idx: {key: (self._run_slice(v, name, k) if v.dim() > 0 else v.clone()) for key, v in entry.items()}

@@ -350,6 +350,8 @@ class MADDPGPolicy(BasePolicy):
     :param precision: ``"fp32"`` (default) or ``"bf16"``: the networks' products in bfloat16 from float32 master
         weights, gradients and optimizer state. Opt-in, for CPUs with native bfloat16 GEMMs (AVX-512 BF16, AMX) and
         large networks; see ``benchmarks/throughput.py --bf16`` for its speed on the machine at hand.
+    :param intrinsic_critic: Also build a second set of critics (``critic_int``, its target and optimizer), the
+        same architecture as the critics, that learns the exploration bonus's return (set by MADDPG).
     """
 
     def __init__(
@@ -370,6 +372,7 @@ class MADDPGPolicy(BasePolicy):
         share_actors: list[list[int]] | None = None,
         share_critics: list[list[int]] | None = None,
         precision: str = "fp32",
+        intrinsic_critic: bool = False,
     ):
         if normalize_images:
             raise ValueError("MADDPGPolicy works on vector observations: normalize_images must be False")
@@ -407,6 +410,7 @@ class MADDPGPolicy(BasePolicy):
         if precision not in PRECISIONS:
             raise ValueError(f"policy_kwargs precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         self.precision = precision
+        self.intrinsic_critic = bool(intrinsic_critic)
         self._actor_kwargs = dict(
             layout=agent_layout,
             net_arch=actor_arch,
@@ -440,6 +444,14 @@ class MADDPGPolicy(BasePolicy):
         self.critic_target.requires_grad_(False)
         self.actor.optimizer = self._make_optimizer(self.actor.mu, lr_schedule)
         self.critic.optimizer = self._make_optimizer(self.critic.q_net, lr_schedule)
+        self.critic_int: MultiAgentCritic | None = None
+        self.critic_int_target: MultiAgentCritic | None = None
+        if self.intrinsic_critic:  # drawn after the others: actors and critics start as they would without it
+            self.critic_int = MultiAgentCritic(**self._critic_kwargs, generators=generators)
+            self.critic_int_target = MultiAgentCritic(**self._critic_kwargs)
+            self.critic_int_target.load_state_dict(self.critic_int.state_dict())
+            self.critic_int_target.requires_grad_(False)
+            self.critic_int.optimizer = self._make_optimizer(self.critic_int.q_net, lr_schedule)
         self.set_training_mode(False)
 
     def _make_optimizer(self, net: GroupedMLP, lr_schedule: Schedule) -> th.optim.Optimizer:
@@ -468,6 +480,7 @@ class MADDPGPolicy(BasePolicy):
                 share_actors=self.share_actors,
                 share_critics=self.share_critics,
                 precision=self.precision,
+                intrinsic_critic=self.intrinsic_critic,
             )
         )
         return data
@@ -490,6 +503,8 @@ class MADDPGPolicy(BasePolicy):
         modules = self.__dict__.get("_mode_modules")
         if modules is None:
             modules = [*self.actor.modules(), *self.critic.modules()]
+            if self.__dict__.get("intrinsic_critic"):
+                modules += list(self.critic_int.modules())  # type: ignore[union-attr]
             self.__dict__["_mode_modules"] = modules
         for module in modules:
             module.__dict__["training"] = mode
