@@ -62,6 +62,10 @@ MISTAKES = [
     (["--num-threads", "0"], ["--num-threads"]),
     (["-n", "0"], ["-n"]),
     (["-n", "-5"], ["-n"]),
+    (["-i", "logs/maddpg/x/model.zip"], ["-i/--trained-agent", "--resume"]),
+    (["-params", "exploration.beta:'lin_fast'"], ["exploration.beta", "lin_<number>"]),
+    (["-params", "exploration.normalize:'mean'"], ["exploration", "normalize"]),
+    (["-params", "intrinsic_gamma:2"], ["intrinsic_gamma"]),
 ]
 
 

@@ -126,7 +126,7 @@ def make_parser() -> argparse.ArgumentParser:
     add("-params", "--hyperparams", nargs="+", default=[], metavar="KEY:VALUE",
         help="hyperparameter overrides (dotted keys for nested dicts: exploration.beta:0.4)")  # fmt: skip
     add("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="keyword arguments for the env")
-    add("--eval-freq", type=int, default=20, help="evaluate every this many steps (0: never); the paper: 20")
+    add("--eval-freq", type=int, default=20, help="evaluate every this many steps (0 or negative: never, as rl_zoo3); the paper: 20")
     add("--eval-episodes", type=int, default=10, help="episodes per evaluation; the paper: 10")
     add("--num-threads", type=int, default=1, help="torch threads")
     add("--device", default="auto", help="torch device (auto, cpu, cuda)")
@@ -142,6 +142,8 @@ def make_parser() -> argparse.ArgumentParser:
     add("--checkpoint-freq", type=int, default=None, help="checkpoint every N steps into the run folder")
     add("--resume", metavar="RUN_FOLDER", default=None, help="continue a checkpointed run (same command)")
     add("--keep-models", action="store_true", help="keep every checkpoint's model as RUN_FOLDER/models/step_N.zip")
+    add("-i", "--trained-agent", default=None, help="rl_zoo3's option to continue a saved model: not supported "
+        "(continue a checkpointed run with --resume RUN_FOLDER)")  # fmt: skip
     search = parser.add_argument_group("hyperparameter search (rl_zoo3's Optuna optimizer)")
     search.add_argument("-optimize", "--optimize-hyperparameters", "--optimize", dest="optimize", action="store_true")
     search.add_argument("--n-trials", type=int, default=500)
@@ -181,8 +183,14 @@ def _check_arguments(args: argparse.Namespace) -> None:
         raise ExperimentError(f"-n/--n-timesteps must be >= 1 step, got {args.n_timesteps}")
     if args.num_threads < 1:
         raise ExperimentError(f"--num-threads must be >= 1, got {args.num_threads}")
-    if args.eval_freq < 0 or args.eval_episodes < 1:
-        raise ExperimentError(f"--eval-freq must be >= 0 and --eval-episodes >= 1, got {args.eval_freq} and {args.eval_episodes}")
+    if args.trained_agent is not None:
+        raise ExperimentError(
+            f"-i/--trained-agent {args.trained_agent}: not supported (a model zip lacks the replay buffer, count tables and "
+            "random states a run continues from); checkpoint with --checkpoint-freq N and continue with --resume RUN_FOLDER"
+        )
+    if args.eval_episodes < 1:
+        raise ExperimentError(f"--eval-episodes must be >= 1, got {args.eval_episodes}")
+    args.eval_freq = max(args.eval_freq, 0)  # rl_zoo3: a negative frequency turns evaluation off
     if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
         raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
     if not valid_device(args.device):
