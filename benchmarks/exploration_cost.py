@@ -8,7 +8,7 @@ What each exploration estimator adds to a step of training, as a share of one MA
 Per step, an estimator hashes and counts the collected transition (``keys`` + ``count``) and gives the bonus of a
 sampled minibatch (``bonus``, with its normalisation). Both are timed on an estimator whose table already holds
 ``--codes`` codes, in the same process as the update they are compared with (a plain MADDPG update, medians of
-interleaved blocks). Targets (issue 28): counts at most 10% of an update at 400-300. The last line:
+interleaved blocks). Targets (issue 28): counts at most 10% of an update at 400-300, RND at most 25%. The last line:
 ``exploration_cost: <setting>@<net>=<percent> ...``.
 """
 
@@ -18,16 +18,17 @@ import time
 import numpy as np
 import torch as th
 
-from sb3_macb import MACB, MADDPG
+from sb3_macb import MACB, MADDPG, RND
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 
 COMM = "sb3_macb/CommunicativeNavigation-v0"
 SETTINGS = {
-    "exact": dict(),
-    "exact+center": dict(normalize="center"),
-    "exact+zscore": dict(normalize="zscore"),
-    "sketch": dict(table="sketch"),
-    "constant": dict(counts=False),
+    "exact": lambda: MACB(0.8, 512),
+    "exact+center": lambda: MACB(0.8, 512, normalize="center"),
+    "exact+zscore": lambda: MACB(0.8, 512, normalize="zscore"),
+    "sketch": lambda: MACB(0.8, 512, table="sketch"),
+    "constant": lambda: MACB(0.8, 512, counts=False),
+    "rnd": lambda: RND(0.8),
 }
 
 
@@ -42,12 +43,12 @@ def median_us(fn, calls: int, blocks: int = 7) -> float:
     return float(np.median(times))
 
 
-def estimator_us(model: MADDPG, kwargs: dict, codes: int, calls: int) -> float:
+def estimator_us(model: MADDPG, make, codes: int, calls: int) -> float:
     """One step's estimator work (count one transition, bonus of one minibatch) with ``codes`` codes counted."""
-    macb = MACB(beta=0.8, k=512, **kwargs)
+    macb = make()
     macb.setup(model.agent_layout, seed=0)
     rng = np.random.default_rng(0)
-    if macb.counts:
+    if isinstance(macb, MACB) and macb.counts:
         for table in macb.tables:  # fill with random keys as a long run would have them (almost all new at k 512)
             table.add(rng.integers(1, 2**63, size=codes, dtype=np.uint64))
     buffer = model.replay_buffer
@@ -61,7 +62,11 @@ def estimator_us(model: MADDPG, kwargs: dict, codes: int, calls: int) -> float:
         i = step[0] % n
         step[0] += 1
         macb.count(macb.keys(obs[i : i + 1], actions[i : i + 1]))
-        macb.bonus(stored[rng.integers(0, n, size=100)])
+        rows = rng.integers(0, n, size=100)
+        if isinstance(macb, RND):  # (its bonus reads the observations, and trains its predictor on them)
+            macb.bonus(stored[rows], observations=obs[rows])
+        else:
+            macb.bonus(stored[rows])
 
     return median_us(one_step, calls)
 
@@ -80,8 +85,8 @@ def main() -> None:
         update = median_us(lambda: model.train(1, 100), args.updates)
         name = "-".join(map(str, net))
         print(f"{name}: one MADDPG update {update / 1000:.2f} ms")
-        for setting, kwargs in SETTINGS.items():
-            cost = estimator_us(model, kwargs, int(args.codes), args.updates)
+        for setting, make in SETTINGS.items():
+            cost = estimator_us(model, make, int(args.codes), args.updates)
             print(f"  {setting:13s} {cost:8.1f} us per step = {100 * cost / update:5.1f}% of an update")
             summary.append(f"{setting}@{name}={100 * cost / update:.1f}")
     print("exploration_cost: " + " ".join(summary))

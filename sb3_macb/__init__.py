@@ -2,7 +2,7 @@
 
 from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
 from sb3_macb.envs import AgentLayout, JointEnv, make_joint_env
-from sb3_macb.exploration import MACB
+from sb3_macb.exploration import MACB, RND
 from sb3_macb.maddpg import MADDPG, MADDPGPolicy, MlpPolicy
 from sb3_macb.matd3 import MATD3
 
@@ -12,6 +12,7 @@ __all__ = [
     "MACB",
     "MADDPG",
     "MATD3",
+    "RND",
     "MACBReplayBuffer",
     "AgentLayout",
     "JointEnv",

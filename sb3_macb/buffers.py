@@ -310,7 +310,10 @@ class MACBReplayBuffer(MultiAgentReplayBuffer):
         for run, exploration in enumerate(self.explorations):
             if exploration is not None:
                 keys = self.hash_keys[batch_inds[run], env_inds[run], : exploration.n_tables]
-                run_bonus = exploration.bonus(keys)  # (batch, 1): shared by all agents; (batch, n_agents): local
+                if getattr(exploration, "uses_observations", False):  # (RND: the minibatch's observations)
+                    run_bonus = exploration.bonus(keys, observations=self.observations[batch_inds[run], env_inds[run]])
+                else:
+                    run_bonus = exploration.bonus(keys)  # (batch, 1): shared by all agents; (batch, n_agents): local
                 bonus[run] = run_bonus
                 self.bonus_sum += float(run_bonus.sum()) / exploration.n_tables
                 self.bonus_n += batch

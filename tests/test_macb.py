@@ -415,3 +415,32 @@ def test_macb_with_a_sketch_gives_at_most_the_exact_bonus_and_saves(tmp_path):
         MACB(table="sketch", sketch_depth=0)
     with pytest.raises(ValueError, match="table must be one of"):
         MACB(table="bloom")
+
+
+# --- RND --------------------------------------------------------------------------------------------------------------
+
+
+def test_rnd_bonus_falls_on_trained_states_stays_high_on_new_ones_and_saves(tmp_path):
+    from sb3_macb import RND
+
+    model = make_model(RND(beta=0.5, normalize=None, learning_rate=3e-3))
+    model.learn(300)
+    rnd, obs = model.exploration, model.replay_buffer.observations[:290, 0]
+    seen, new = rnd.errors(obs).mean(), rnd.errors(obs * 5 + 3).mean()
+    assert new > 20 * seen  # trained on the buffer's states: small errors there, large ones far from them
+    keys = np.zeros((len(obs), 1), dtype=np.uint64)
+    np.testing.assert_allclose(rnd.bonus(keys, training=False, observations=obs), 0.5 * rnd.errors(obs), rtol=1e-5)
+    model.save(tmp_path / "m.zip")
+    loaded = MADDPG.load(tmp_path / "m.zip", env=make_joint_env(Rendezvous()))
+    np.testing.assert_array_equal(loaded.exploration.errors(obs), rnd.errors(obs))
+    assert loaded.exploration.config == rnd.config and loaded.exploration.total_count == 300
+    loaded.learn(20, reset_num_timesteps=False)
+    assert loaded.exploration.total_count == 320
+    local = make_model({"estimator": "rnd", "scope": "local"})  # from a dict, as YAML gives it
+    assert isinstance(local.exploration, RND) and local.exploration.n_tables == 2
+    with pytest.raises(ValueError, match="exploration estimator must be one of"):
+        make_model({"estimator": "icm"})
+    with pytest.raises(ValueError, match=r"Unknown RND option\(s\) \['k'\]"):
+        make_model({"estimator": "rnd", "k": 16})
+    with pytest.raises(ValueError, match="RND: beta must be"):
+        RND(beta=-1)

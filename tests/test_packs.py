@@ -300,3 +300,24 @@ def test_an_intrinsic_critic_pack_with_matd3_settings_is_bit_identical_to_its_so
     for a, b in zip(loaded.policy.state_dict().values(), pack.policy.state_dict().values()):
         assert th.equal(a, b)
     assert loaded.intrinsic_critic and loaded.intrinsic_gamma == 0.9 and loaded.intrinsic_coef == 0.5
+
+
+def test_a_pack_of_rnd_runs_is_bit_identical_to_its_solo_runs():
+    from sb3_macb import RND
+
+    def make(seeds, explorations):
+        return MADDPG("MlpPolicy", make_task_vec_env(COMM, len(seeds)), n_runs=len(seeds), run_seeds=seeds,
+                      exploration=explorations, policy_kwargs=dict(net_arch=[32, 32]), batch_size=16, buffer_size=60,
+                      learning_starts=40 * len(seeds))  # fmt: skip
+
+    settings = lambda: [RND(0.5), RND(0.5, scope="local", normalize=None)]  # noqa: E731
+    pack = make([7, 8], settings())
+    pack.learn(2 * 150)  # the buffer of 60 wraps twice
+    for k, (seed, exploration) in enumerate(zip([7, 8], settings())):
+        solo = make([seed], [exploration])
+        solo.learn(150)
+        run = pack.get_run(k)
+        for a, b in zip(run.policy.state_dict().values(), solo.policy.state_dict().values()):
+            assert th.equal(a, b), k
+        for name, tensor in solo.exploration.state_dict().items():
+            assert th.equal(run.exploration.state_dict()[name], tensor), (k, name)

@@ -66,6 +66,7 @@ MISTAKES = [
     (["-params", "exploration.beta:'lin_fast'"], ["exploration.beta", "lin_<number>"]),
     (["-params", "exploration.normalize:'mean'"], ["exploration", "normalize"]),
     (["-params", "intrinsic_gamma:2"], ["intrinsic_gamma"]),
+    (["-params", "exploration.estimator:'icm'"], ["exploration", "estimator"]),
 ]
 
 

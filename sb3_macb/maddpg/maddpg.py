@@ -23,7 +23,9 @@ from stable_baselines3.td3 import TD3
 from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
 from sb3_macb.common.atomic import atomic_write, with_suffix
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
+from sb3_macb.exploration.estimators import make_exploration
 from sb3_macb.exploration.macb import MACB
+from sb3_macb.exploration.rnd import RND
 from sb3_macb.maddpg.policies import MADDPGPolicy, MlpPolicy, MultiAgentActor, MultiAgentCritic, _block_mask
 
 SelfMADDPG = TypeVar("SelfMADDPG", bound="MADDPG")
@@ -205,13 +207,13 @@ class MADDPG(TD3):
             # the same MACB object given for several runs ([MACB(...)] * K) is copied: every run counts in its own table
             per_run, seen = [], set()
             for setting in exploration:
-                per_run.append(copy.deepcopy(setting) if isinstance(setting, MACB) and id(setting) in seen else setting)
+                per_run.append(copy.deepcopy(setting) if isinstance(setting, (MACB, RND)) and id(setting) in seen else setting)
                 seen.add(id(setting))
         else:  # one setting for every run: each run gets its own copy (and its own count table)
             per_run = [exploration] + [copy.deepcopy(exploration) for _ in range(n_runs - 1)]
         if len(per_run) != n_runs:
             raise ValueError(f"exploration: expected one setting per run ({n_runs}), got {len(per_run)}")
-        self.explorations: list[MACB | None] = [MACB.from_config(e) for e in per_run]
+        self.explorations: list[MACB | None] = [make_exploration(e) for e in per_run]  # type: ignore[misc]
         if intrinsic_critic and all(e is None for e in self.explorations):
             raise ValueError("intrinsic_critic=True learns an exploration bonus: give exploration=MACB(...) too")
         self.intrinsic_critic = bool(intrinsic_critic)

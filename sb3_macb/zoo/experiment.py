@@ -306,11 +306,11 @@ def check_values(hyperparams: dict[str, Any], where: str) -> None:
         raise ExperimentError(f"{where}: 'device' must be 'auto' or a torch device such as 'cpu' or 'cuda', got {hyperparams['device']!r}")
     exploration = hyperparams.get("exploration")
     if exploration is not None:
-        from sb3_macb.exploration.macb import MACB
+        from sb3_macb.exploration.estimators import make_exploration
 
         exploration = exploration_with_schedules(exploration, where)
         try:
-            MACB.from_config(exploration)
+            make_exploration(exploration)
         except (TypeError, ValueError) as exc:
             raise ExperimentError(f"{where}: 'exploration': {exc}") from None
 
