@@ -42,6 +42,8 @@ for h in hp:  # (a buffer of 300: it wraps before and after the checkpoint a kil
     h.update(policy_kwargs="dict(net_arch=[32, 32])", batch_size=16, buffer_size=300)
 hp[0]["exploration"] = dict(beta="lin_0.8", k=16, normalize="zscore", table="sketch", sketch_width=101)  # all state
 hp[1]["exploration"] = dict(estimator="rnd", beta=0.3)  # networks, Adam state and statistics
+for h in hp:
+    h["intrinsic_critic"] = True  # (and both runs learn their bonus with intrinsic critics)
 runs = [RunConfig(seed=s, folder=f"{{root}}/{{tag}}/run_{{s}}", hyperparams=h) for s, h in zip((0, 1), hp)]
 config = ExperimentConfig("{env}", runs, n_timesteps=steps)
 Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0).run(resume=len(sys.argv) > 4)
