@@ -52,9 +52,12 @@ class Run:
     final_last: float
 
 
-def load_runs(task_folder: str) -> tuple[dict[str, list[Run]], dict[str, list[int]]]:
-    """The complete runs of every variant below ``task_folder``, and the seeds of the incomplete ones."""
-    runs: dict[str, list[Run]] = {}
+def complete_runs(task_folder: str, required: set[str]) -> tuple[list[tuple[str, int, dict]], dict[str, list[int]]]:
+    """
+    (variant, seed, evaluations) of every complete run below ``task_folder``, each checked to hold the ``required``
+    arrays, and the seeds of the incomplete runs by variant.
+    """
+    done: list[tuple[str, int, dict]] = []
     incomplete: dict[str, list[int]] = {}
     for path in sorted(glob.glob(os.path.join(task_folder, "*", "seed_*", evaluations.FILE_NAME))):
         folder = os.path.dirname(path)
@@ -63,9 +66,18 @@ def load_runs(task_folder: str) -> tuple[dict[str, list[Run]], dict[str, list[in
             incomplete.setdefault(variant, []).append(seed)
             continue
         data = evaluations.load(path)
-        missing = {evaluations.SUCCESSES, evaluations.FINAL_SUCCESSES} - set(data)
+        missing = required - set(data)
         if missing:
             raise SystemExit(f"{path} has no {', '.join(sorted(missing))}: it predates the registered metrics")
+        done.append((variant, seed, data))
+    return done, incomplete
+
+
+def load_runs(task_folder: str) -> tuple[dict[str, list[Run]], dict[str, list[int]]]:
+    """The complete runs of every variant below ``task_folder``, and the seeds of the incomplete ones."""
+    runs: dict[str, list[Run]] = {}
+    done, incomplete = complete_runs(task_folder, {evaluations.SUCCESSES, evaluations.FINAL_SUCCESSES})
+    for variant, seed, data in done:
         value, reached = evaluations.episodes_to(
             data[evaluations.SUCCESSES], evaluations.episodes(data), THRESHOLD, WINDOW
         )

@@ -28,7 +28,6 @@ threshold when its trailing 200-evaluation mean does; a run that never does is c
 """
 
 import argparse
-import glob
 import os
 import sys
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from headline_analysis import WINDOW, Run, decide_c2  # noqa: E402  (a sibling script)
+from headline_analysis import WINDOW, Run, complete_runs, decide_c2  # noqa: E402  (a sibling script)
 
 from sb3_macb.common import evaluations  # noqa: E402
 
@@ -68,17 +67,9 @@ class NavRun:
 def load_runs(task_folder: str) -> tuple[dict[str, list[NavRun]], dict[str, list[int]]]:
     """The complete runs of every variant below ``task_folder`` (by seed), and the seeds of the incomplete ones."""
     runs: dict[str, list[NavRun]] = {}
-    incomplete: dict[str, list[int]] = {}
-    for path in sorted(glob.glob(os.path.join(task_folder, "*", "seed_*", evaluations.FILE_NAME))):
-        folder = os.path.dirname(path)
-        variant, seed = os.path.basename(os.path.dirname(folder)), int(os.path.basename(folder)[len("seed_") :])
-        if not evaluations.is_complete(folder):
-            incomplete.setdefault(variant, []).append(seed)
-            continue
-        data = evaluations.load(path)
-        missing = {evaluations.SUCCESSES, evaluations.FINAL_SUCCESSES, evaluations.TRAINING_COLLISIONS} - set(data)
-        if missing:
-            raise SystemExit(f"{path} has no {', '.join(sorted(missing))}: it predates the registered metrics")
+    required = {evaluations.SUCCESSES, evaluations.FINAL_SUCCESSES, evaluations.TRAINING_COLLISIONS}
+    done, incomplete = complete_runs(task_folder, required)
+    for variant, seed, data in done:
         runs.setdefault(variant, []).append(
             NavRun(seed, data, evaluations.final_level(data, evaluations.SUCCESSES, WINDOW),
                    evaluations.final_level(data, evaluations.FINAL_SUCCESSES, WINDOW),
