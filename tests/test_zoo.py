@@ -550,3 +550,22 @@ def test_sweep_pack_a_point_refused_at_setup_fails_alone(tmp_path):
         rows = {row["exploration.beta"]: row for row in csv.DictReader(file)}
     assert rows["0.5"]["status"] == "done" and os.path.isfile(os.path.join(rows["0.5"]["run_folder"], "evaluations.npz"))
     assert rows["-1.0"]["status"] == "failed" and "beta must be a finite number >= 0" in rows["-1.0"]["error"]
+
+
+def test_curve_titles_name_the_task_and_the_smoothing_applied_and_unequal_runs_are_announced(tmp_path):
+    from sb3_macb.zoo import plots
+
+    def run(folder, n):
+        folder.mkdir(parents=True)
+        np.savez(folder / "evaluations.npz", timesteps=20 * np.arange(1, n + 1), episodes=np.arange(1, n + 1),
+                 successes=np.ones((n, 2), dtype=bool), results=np.zeros((n, 2)))  # fmt: skip
+
+    group = tmp_path / "Task-sparse" / "maddpg"
+    run(group / "seed_0", 10)
+    title = plots.plot_curves([str(group)], str(tmp_path / "a.png"), window=50)
+    assert title.startswith("Task-sparse: ") and "moving average of 10 evaluations, 10 training episodes" in title
+    run(group / "seed_1", 4)
+    with pytest.warns(UserWarning, match="its runs have 4 to 10 evaluations; its curve ends at the shortest"):
+        title = plots.plot_curves([str(group)], str(tmp_path / "b.png"), window=2)
+    assert "moving average of 2 evaluations, 4 training episodes" in title
+    assert plots._label(str(group), 1) == "maddpg (1 seed)" and plots._label(str(group), 3) == "maddpg (3 seeds)"

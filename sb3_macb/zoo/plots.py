@@ -16,6 +16,7 @@ import argparse
 import csv
 import json
 import os
+import warnings
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,29 @@ def mean_and_band(curves: list[np.ndarray], confidence: float) -> tuple[np.ndarr
 _x_axis = evaluations.episodes
 
 
+def _label(folder: str, n_runs: int) -> str:
+    """A group's legend entry: its folder name and how many seeds it averages."""
+    return f"{os.path.basename(os.path.normpath(folder))} ({n_runs} seed{'' if n_runs == 1 else 's'})"
+
+
+def _task(groups: list[str]) -> str:
+    """The task folders the groups sit in (e.g. ``CommunicativeNavigation-sparse-4e4``), for the title."""
+    names = sorted({os.path.basename(os.path.dirname(os.path.normpath(folder))) or "." for folder in groups})
+    return ", ".join(names)
+
+
+def _shortest(folder: str, runs: list[dict[str, np.ndarray]]) -> int:
+    """The evaluations of the group's shortest run, with a warning when its runs differ in length."""
+    lengths = [len(r[evaluations.SUCCESSES]) for r in runs]
+    if min(lengths) != max(lengths):
+        warnings.warn(
+            f"{folder}: its runs have {min(lengths)} to {max(lengths)} evaluations; its curve ends at the shortest "
+            f"(episode {int(_x_axis(runs[0])[min(lengths) - 1])}); --complete-only leaves runs in progress out",
+            stacklevel=3,
+        )
+    return min(lengths)
+
+
 def plot_curves(
     groups: list[str],
     output: str,
@@ -65,12 +89,14 @@ def plot_curves(
     confidence: float = 0.75,
     reference: str | None = None,
     complete_only: bool = False,
-) -> None:
+) -> str:
     """
     Success rate (any-step and, where recorded, final-step) and mean evaluation return against training episodes,
     one line per run group; with ``reference`` (the JSON of ``scripts/reference_levels.py``) the scripted
     listeners' levels as horizontal lines. With ``complete_only``, runs still in progress are left out (otherwise
-    a group's curve ends where its shortest run does).
+    a group's curve ends where its shortest run does, with a warning).
+
+    :return: The figure's title (task folders, seeds' band, the smoothing actually applied, episodes shown).
     """
     plt = _pyplot()
     all_runs = {folder: load_group(folder, complete_only=complete_only) for folder in groups}
@@ -78,8 +104,9 @@ def plot_curves(
     if all(evaluations.FINAL_SUCCESSES in r for runs in all_runs.values() for r in runs):
         panels.insert(1, (evaluations.FINAL_SUCCESSES, "final-step success rate"))
     fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.5))
+    shortest = {folder: _shortest(folder, runs) for folder, runs in all_runs.items()}
     for folder, runs in all_runs.items():
-        label = f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)"
+        label = _label(folder, len(runs))
         x = _x_axis(runs[0])
         for ax, (key, _) in zip(axes, panels):
             if not all(key in r for r in runs):
@@ -105,10 +132,15 @@ def plot_curves(
             ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper left", fontsize=7)
-    fig.suptitle(f"mean over seeds, {int(confidence * 100)}% confidence band, moving average of {window} evaluations")
+    applied = min(window, max(shortest.values()))
+    episodes = max(int(_x_axis(runs[0])[shortest[folder] - 1]) for folder, runs in all_runs.items())
+    title = (f"{_task(groups)}: mean over seeds, {int(confidence * 100)}% confidence band, moving average of "
+             f"{applied} evaluation{'' if applied == 1 else 's'}, {episodes} training episodes")  # fmt: skip
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(output, dpi=110)
     plt.close(fig)
+    return title
 
 
 def plot_collisions(groups: list[str], output: str, confidence: float = 0.75) -> None:
@@ -121,9 +153,9 @@ def plot_collisions(groups: list[str], output: str, confidence: float = 0.75) ->
             raise ValueError(f"{folder}: the evaluation files have no training_collisions (MultiAgentEvalCallback writes them)")
         mean, band = mean_and_band([r[evaluations.TRAINING_COLLISIONS].astype(float) for r in runs], confidence)
         xs = _x_axis(runs[0])[: len(mean)]
-        ax.plot(xs, mean, label=f"{os.path.basename(os.path.normpath(folder))} ({len(runs)} seeds)")
+        ax.plot(xs, mean, label=_label(folder, len(runs)))
         ax.fill_between(xs, mean - band, mean + band, alpha=0.25)
-    ax.set(xlabel="training episodes", ylabel="accumulated collisions", title="Collisions during training")
+    ax.set(xlabel="training episodes", ylabel="accumulated collisions", title=f"{_task(groups)}: collisions during training")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
