@@ -53,8 +53,11 @@ def test_tiny_train_run_from_yaml(tmp_path):
 
 def test_a_negative_eval_freq_turns_evaluation_off_and_yaml_schedules_reach_the_model(tmp_path):
     folder = run_train(tmp_path, "-n", "150", "--variant", "fast", "--eval-freq", "-1",
-                       "-params", "exploration.beta:'lin_0.5'", "exploration.normalize:'center'")  # fmt: skip
+                       "-params", "exploration.beta:'lin_0.5'", "exploration.normalize:'center'",
+                       "--env-kwargs", "reward:'distance'")  # fmt: skip
     assert not (Path(folder) / "evaluations.npz").exists()  # rl_zoo3's -1: no evaluation
+    saved = yaml.safe_load(open(Path(folder) / "config.yml"))
+    assert saved["env_kwargs"] == {"reward": "distance"} and saved["exploration"]["beta"] == "lin_0.5"
     model = MADDPG.load(Path(folder) / "model.zip")
     assert model.exploration.beta(1.0) == 0.5 and model.exploration.beta(0.0) == 0.0
     assert model.exploration.normalize == "center" and model.exploration.normalizer.updates == 50  # (learning starts at 100)

@@ -771,7 +771,8 @@ class Experiment:
             solo.save(os.path.join(run.folder, "model.zip"))
             with atomic_write(os.path.join(run.folder, "config.yml")) as file:
                 file.write(yaml.safe_dump({"env_id": self.config.env_id, "seed": run.seed, "variants": run.variants,
-                                           **run.hyperparams, "n_timesteps": self.config.n_timesteps,
+                                           **run.hyperparams, "env_kwargs": dict(self.config.env_kwargs),
+                                           "n_timesteps": self.config.n_timesteps,
                                            "buffer_size_per_run": buffer_size_per_run}).encode())  # fmt: skip
             info = {
                 "command": self.config.command,
