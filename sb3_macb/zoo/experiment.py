@@ -16,6 +16,8 @@ evaluations are identical, array for array, to an uninterrupted run's.
 
 import argparse
 import ast
+import difflib
+import inspect
 import json
 import os
 import pickle
@@ -121,6 +123,43 @@ def safe_eval(text: str, where: str) -> Any:
 # --- hyperparameters from the zoo YAML -----------------------------------------------------------------------------
 
 
+# keys rl_zoo3 consumes itself before building the model
+ZOO_KEYS = {
+    "n_timesteps", "policy", "n_envs", "normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback",
+    "noise_type", "noise_std", "env_kwargs", "monitor_kwargs", "normalize_kwargs",
+}  # fmt: skip
+MODEL_KEYS = set(inspect.signature(MADDPG.__init__).parameters) - {"self", "env", "_init_setup_model", "policy"}
+
+
+def check_hyperparams(hyperparams: dict[str, Any], where: str) -> None:
+    """Raise a clear error for keys neither rl_zoo3 nor MADDPG know."""
+    known = ZOO_KEYS | MODEL_KEYS
+    unknown = sorted(set(hyperparams) - known)
+    if unknown:
+        hints = []
+        for key in unknown:
+            close = difflib.get_close_matches(key, known, n=1)
+            hints.append(f"'{key}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
+        raise ExperimentError(f"Unknown hyperparameter(s) in {where}: {', '.join(hints)}. Known keys: {sorted(known)}")
+
+
+def apply_overrides(hyperparams: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """
+    Apply ``overrides`` on top of ``hyperparams``; a dotted key (``exploration.beta``) sets a key of a nested
+    dict (created when absent, e.g. when the base has ``exploration: null``).
+    """
+    result = deepcopy(hyperparams)
+    for key, value in overrides.items():
+        *parents, leaf = key.split(".")
+        target = result
+        for parent in parents:
+            if not isinstance(target.get(parent), dict):
+                target[parent] = {}
+            target = target[parent]
+        target[leaf] = value
+    return result
+
+
 def load_hyperparams(
     env_id: str, conf_file: str | None = None, variants: tuple[str, ...] | list[str] = (), overrides: dict[str, Any] | None = None
 ) -> dict[str, Any]:
@@ -133,8 +172,6 @@ def load_hyperparams(
     :param variants: Names from the file's ``variants`` section, applied in order.
     :param overrides: Hyperparameters applied last.
     """
-    from sb3_macb.zoo.train import apply_overrides, check_hyperparams
-
     conf_file = conf_file or DEFAULT_CONFIG
     try:
         with open(conf_file, "rb") as file:

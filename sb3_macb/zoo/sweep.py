@@ -83,7 +83,7 @@ def load_config(path: str) -> dict[str, Any]:
         if not isinstance(conf_file, str) or not conf_file.endswith((".yml", ".yaml")):
             raise ValueError(f"{path}: conf_file must be the path of a .yml/.yaml hyperparameter file, got {conf_file!r}")
         _read_yaml_mapping(conf_file, "conf_file")
-    from sb3_macb.zoo.train import MODEL_KEYS, ZOO_KEYS
+    from sb3_macb.zoo.experiment import MODEL_KEYS, ZOO_KEYS
 
     for name in grid:
         if name.split(".")[0] not in ZOO_KEYS | MODEL_KEYS:

@@ -18,57 +18,34 @@ It takes rl_zoo3's train options that apply to these runs (same names and spelli
 
 import argparse
 import difflib
-import inspect
 import os
 import shlex
 import sys
 from copy import deepcopy
-from pathlib import Path
 from pprint import pprint
 from typing import Any
 
 import sb3_macb.envs  # noqa: F401  (registers the task ids)
 from sb3_macb.maddpg import MADDPG
 
-DEFAULT_CONFIG = str(Path(__file__).parent / "hyperparams" / "maddpg.yml")
-
-# keys rl_zoo3 consumes itself before building the model
-ZOO_KEYS = {
-    "n_timesteps", "policy", "n_envs", "normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback",
-    "noise_type", "noise_std", "env_kwargs", "monitor_kwargs", "normalize_kwargs",
-}  # fmt: skip
-MODEL_KEYS = set(inspect.signature(MADDPG.__init__).parameters) - {"self", "env", "_init_setup_model", "policy"}
-
-
-def check_hyperparams(hyperparams: dict[str, Any], where: str) -> None:
-    """Raise a clear error for keys neither rl_zoo3 nor MADDPG know."""
-    known = ZOO_KEYS | MODEL_KEYS
-    unknown = sorted(set(hyperparams) - known)
-    if unknown:
-        hints = []
-        for key in unknown:
-            close = difflib.get_close_matches(key, known, n=1)
-            hints.append(f"'{key}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
-        from sb3_macb.zoo.experiment import ExperimentError
-
-        raise ExperimentError(f"Unknown hyperparameter(s) in {where}: {', '.join(hints)}. Known keys: {sorted(known)}")
-
-
-def apply_overrides(hyperparams: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
-    """
-    Apply ``overrides`` on top of ``hyperparams``; a dotted key (``exploration.beta``) sets a key of a nested
-    dict (created when absent, e.g. when the base has ``exploration: null``).
-    """
-    result = deepcopy(hyperparams)
-    for key, value in overrides.items():
-        *parents, leaf = key.split(".")
-        target = result
-        for parent in parents:
-            if not isinstance(target.get(parent), dict):
-                target[parent] = {}
-            target = target[parent]
-        target[leaf] = value
-    return result
+from sb3_macb.zoo.experiment import (
+    DEFAULT_CONFIG,
+    EVALUATED_KEYS,
+    SAFE_CALLBACKS,
+    UNSAFE_HINT,
+    Experiment,
+    ExperimentConfig,
+    ExperimentError,
+    RunConfig,
+    callback_entries,
+    check_hyperparams,
+    check_values,
+    evaluate_string,
+    load_hyperparams,
+    make_callbacks,
+    unsupported_keys,
+    valid_device,
+)
 
 
 def register_with_rl_zoo3() -> None:
@@ -163,7 +140,6 @@ def _pairs(items: list[str], what: str, unsafe_eval: bool) -> dict[str, Any]:
     YAML would also hold as strings (``policy_kwargs: "dict(...)"``) are checked here and kept as strings, so that the
     run's ``experiment.json`` stays plain JSON and its ``config.yml`` reads like the YAML.
     """
-    from sb3_macb.zoo.experiment import EVALUATED_KEYS, ExperimentError, evaluate_string
 
     result = {}
     for item in items:
@@ -177,7 +153,6 @@ def _pairs(items: list[str], what: str, unsafe_eval: bool) -> dict[str, Any]:
 
 def _check_arguments(args: argparse.Namespace) -> None:
     """Refuse command-line values that cannot make a run, in one line naming the option (before anything is made)."""
-    from sb3_macb.zoo.experiment import ExperimentError, valid_device
 
     if args.n_timesteps is not None and args.n_timesteps < 1:
         raise ExperimentError(f"-n/--n-timesteps must be >= 1 step, got {args.n_timesteps}")
@@ -201,7 +176,6 @@ def _check_arguments(args: argparse.Namespace) -> None:
 
 def _check_writable(folder: str, option: str) -> None:
     """``folder`` is a folder this user can write in, or can be made in one (checked without writing anything)."""
-    from sb3_macb.zoo.experiment import ExperimentError
 
     import tempfile
 
@@ -220,7 +194,6 @@ def _check_writable(folder: str, option: str) -> None:
 def _check_env_id(env_id: str) -> None:
     import gymnasium as gym
 
-    from sb3_macb.zoo.experiment import ExperimentError
 
     if env_id not in gym.registry:
         close = difflib.get_close_matches(env_id, list(gym.registry), n=1)
@@ -256,8 +229,6 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     """
     import numpy as np
     import torch as th
-
-    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, RunConfig, load_hyperparams
 
     argv = list(sys.argv[1:] if argv is None else argv)
     args = make_parser().parse_args(argv)
@@ -328,18 +299,6 @@ def _optimize(args: argparse.Namespace, hyperparams: dict[str, Any], env_kwargs:
               tensorboard_log: str) -> None:  # fmt: skip
     """``--optimize``: rl_zoo3's Optuna search over MADDPG's and MACB's hyperparameters, from the resolved entry."""
     from rl_zoo3.exp_manager import ExperimentManager
-
-    from sb3_macb.zoo.experiment import (
-        EVALUATED_KEYS,
-        SAFE_CALLBACKS,
-        UNSAFE_HINT,
-        ExperimentError,
-        callback_entries,
-        check_values,
-        evaluate_string,
-        make_callbacks,
-        unsupported_keys,
-    )
 
     check_values({**hyperparams, "n_timesteps": n_timesteps}, "--optimize")
     resolved = dict(hyperparams)
