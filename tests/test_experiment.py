@@ -255,7 +255,9 @@ def test_a_save_killed_at_any_moment_leaves_the_previous_file(tmp_path):
 
 @pytest.mark.parametrize(
     "env_id, kwargs",
-    [(COMM, {}), (COMM, {"reward": "distance"}), (NAV, {}), (NAV, {"terminate_on_success": True, "success_radius": 0.6})],
+    [(COMM, {}), (COMM, {"reward": "distance"}), (NAV, {}), (NAV, {"terminate_on_success": True, "success_radius": 0.6}),
+     # every step a success, every step the last: a success at the time limit is a termination in both
+     (NAV, {"terminate_on_success": True, "success_radius": 3.0, "max_cycles": 1})],
 )
 def test_the_vectorized_task_env_steps_exactly_as_the_mpe2_based_one(env_id, kwargs):
     reference = make_vec_env(env_id, n_envs=3, env_kwargs=kwargs)
@@ -272,6 +274,8 @@ def test_the_vectorized_task_env_steps_exactly_as_the_mpe2_based_one(env_id, kwa
         dones_seen += int(d1.sum())
         for a, b in zip(i1, i2):
             assert np.array_equal(a["agent_rewards"], b["agent_rewards"]) and a.get("is_success") == b.get("is_success")
+            assert a.get("TimeLimit.truncated", False) == b.get("TimeLimit.truncated", False)
+            assert ("terminal_observation" in a) == ("terminal_observation" in b)
             first_a, first_b = next(iter(a["agent_infos"].values())), next(iter(b["agent_infos"].values()))
             assert {k: first_a[k] for k in first_b} == first_b
             if d1.any() and "terminal_observation" in a:

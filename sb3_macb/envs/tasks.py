@@ -333,8 +333,9 @@ class TaskParallelEnv(ParallelEnv):
         ]
         env._execute_world_step()
         self.steps += 1
-        truncated = self.steps >= self.max_cycles
-        terminated = not truncated and env.scenario.is_terminal(env.world)
+        # a success that ends the episode is a termination even at the time limit (not bootstrapped), as in TaskVecEnv
+        terminated = env.scenario.is_terminal(env.world)
+        truncated = self.steps >= self.max_cycles and not terminated
         observations = self._observations()
         rewards = {agent: env.rewards[agent] for agent in self.agents}
         terminations = {agent: terminated for agent in self.agents}
