@@ -36,6 +36,10 @@ def flushing_denormals() -> bool:
     return float((th.tensor([1e-39], dtype=th.float32) * 1.0).item()) == 0.0
 
 
+# weight of the discrete agents' mean squared logits in the actor loss (the MADDPG paper's and code's 1e-3)
+DISCRETE_LOGIT_PENALTY = 1e-3
+
+
 class MADDPG(TD3):
     """
     Multi-Agent Deep Deterministic Policy Gradient (MADDPG): one deterministic actor per agent on its own
@@ -109,7 +113,7 @@ class MADDPG(TD3):
         its gradient through ``tanh`` vanishes but Adam rescales it, so the outputs keep growing, and the action
         stays at the bound (docs/results.md shows this in the 400-300 runs with a reward offset). The penalty pulls
         the outputs back; it does not change a critic that asks for the bound, so it need not revive such a run.
-        Discrete agents' logits always get 1e-3, as in the MADDPG paper.
+        Discrete agents' logits always get ``DISCRETE_LOGIT_PENALTY`` (1e-3), as in the MADDPG paper.
     :param intrinsic_critic: Learn the exploration bonus with critics of its own (``critic_int``): the critics
         learn the reward alone, the intrinsic critics learn ``bonus + intrinsic_gamma * Q_int(s', pi'(s'))`` with no
         episode-end masking (novelty does not end with an episode), and each actor ascends
@@ -597,7 +601,7 @@ class MADDPG(TD3):
                     gumbel = self._per_run_draws("gumbel", (batch_size, self.agent_layout.action_dim))  # type: ignore[union-attr]
                     raw = self.actor.raw(data.observations)
                     pi = self.actor.squash(raw, gumbel, straight_through=True).unsqueeze(1)
-                    penalty = 1e-3 * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
+                    penalty = DISCRETE_LOGIT_PENALTY * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
                     if self.preactivation_reg > 0:
                         penalty = penalty + self._preactivation_penalty(raw)
                 elif self.preactivation_reg > 0:
