@@ -1,11 +1,12 @@
-"""The ``sb3-macb`` command (also ``python -m sb3_macb``): train, sweep, plot."""
+"""The ``sb3-macb`` command (also ``python -m sb3_macb``): train, enjoy, sweep, plot."""
 
 import sys
 
-USAGE = """usage: sb3-macb {train,sweep,plot} ...
+USAGE = """usage: sb3-macb {train,enjoy,sweep,plot} ...
 
   train   one run with the zoo's YAML, evaluated as the paper does (sb3-macb train -h: rl_zoo3's option names plus
           --variant, --unsafe-eval); --checkpoint-freq N checkpoints, --resume RUN_FOLDER continues; --optimize searches
+  enjoy   play a run folder's model and print each episode's success and every agent's return (loads a pickle)
   sweep   run a grid of settings x seeds as trials of an Optuna study, shared by any number of workers
   plot    learning curves, collisions, the beta x k table and heatmap, the SimHash grouping figure
 """
@@ -29,6 +30,15 @@ def main(argv: list[str] | None = None) -> int:
             if debug:
                 raise
             print(f"sb3-macb train: error: {exc}", file=sys.stderr)
+            return 2
+    elif command == "enjoy":
+        from sb3_macb.zoo.enjoy import main as enjoy
+        from sb3_macb.zoo.experiment import ExperimentError
+
+        try:
+            return enjoy(rest)
+        except ExperimentError as exc:  # no such folder, no model, a config.yml that names no env: one line
+            print(f"sb3-macb enjoy: error: {exc}", file=sys.stderr)
             return 2
     elif command == "sweep":
         from sb3_macb.zoo.sweep import main as sweep

@@ -572,3 +572,22 @@ def test_curve_titles_name_the_task_and_the_smoothing_applied_and_unequal_runs_a
         title = plots.plot_curves([str(group)], str(tmp_path / "b.png"), window=2)
     assert "moving average of 2 evaluations, 4 training episodes" in title
     assert plots._label(str(group), 1) == "maddpg (1 seed)" and plots._label(str(group), 3) == "maddpg (3 seeds)"
+
+
+def test_enjoy_plays_a_run_folder_and_names_what_is_missing(tmp_path, capsys):
+    from sb3_macb.cli import main as cli
+    from sb3_macb.zoo.enjoy import enjoy
+
+    folder = run_train(tmp_path, "-n", "120", "--variant", "fast", "--env-kwargs", "max_cycles:10")
+    records = enjoy([folder, "-n", "3", "--seed", "1"])
+    out = capsys.readouterr().out
+    assert len(records) == 3 and all(r["returns"].shape == (2,) for r in records)
+    assert "episode 3: success" in out and "speaker_0" in out and "success rate" in out
+    assert "{'max_cycles': 10}" in out  # the run's own env kwargs, from its config.yml
+    again = enjoy([folder, "-n", "3", "--seed", "1", "--model", "final"])
+    assert len(again) == 3
+    assert cli(["enjoy", str(tmp_path / "nowhere")]) == 2
+    assert "no such run folder" in capsys.readouterr().err
+    (Path(folder) / "config.yml").write_text("env_id: os.system\n")
+    assert cli(["enjoy", folder]) == 2
+    assert "'env_id' must name a registered env" in capsys.readouterr().err

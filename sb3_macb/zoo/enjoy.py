@@ -1,0 +1,100 @@
+"""
+``sb3-macb enjoy RUN_FOLDER``: play a trained run (rl_zoo3's ``enjoy`` in spirit) and print each episode's success
+and every agent's return, then their means.
+
+    sb3-macb enjoy logs/maddpg/sb3_macb-CommunicativeNavigation-v0_1 -n 10
+    sb3-macb enjoy RUN_FOLDER --model final --seed 3
+
+The run folder's ``best_model.zip`` (or ``model.zip``: ``--model final``) is played with the deterministic actors on
+the env id and env kwargs of the folder's ``config.yml`` (read as plain YAML data). Model zips are pickles: loading
+one runs code that it names, so play only run folders you trust.
+"""
+
+import argparse
+import os
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sb3_macb.zoo.experiment import ExperimentError
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sb3-macb enjoy", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_folder", help="a run folder written by sb3-macb train or scripts/reproduce.py")
+    parser.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to play")
+    parser.add_argument("--model", choices=["best", "final"], default="best",
+                        help="best_model.zip (by success rate; model.zip where there is none) or model.zip")  # fmt: skip
+    parser.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts")
+    return parser
+
+
+def _run_settings(folder: str, which: str) -> tuple[str, str, dict[str, Any]]:
+    """The model file, env id and env kwargs of a run folder, each checked (one line naming what is wrong)."""
+    import gymnasium as gym
+
+    import sb3_macb.envs  # noqa: F401  (registers the task ids)
+
+    if not os.path.isdir(folder):
+        raise ExperimentError(f"{folder}: no such run folder")
+    config_path = os.path.join(folder, "config.yml")
+    try:
+        with open(config_path) as file:
+            config = yaml.safe_load(file) or {}
+    except OSError:
+        raise ExperimentError(f"{folder} has no config.yml (written when a run completes): not a finished run folder") from None
+    except yaml.YAMLError:
+        raise ExperimentError(f"{config_path} is not valid YAML") from None
+    if not isinstance(config, dict):
+        raise ExperimentError(f"{config_path} is not a mapping of run settings")
+    env_id, env_kwargs = config.get("env_id"), config.get("env_kwargs") or {}
+    if not isinstance(env_id, str) or env_id not in gym.registry:
+        raise ExperimentError(f"{config_path}: 'env_id' must name a registered env, got {env_id!r}")
+    if not isinstance(env_kwargs, dict):
+        raise ExperimentError(f"{config_path}: 'env_kwargs' must be a mapping, got {env_kwargs!r}")
+    names = ["best_model.zip", "model.zip"] if which == "best" else ["model.zip"]
+    models = [os.path.join(folder, name) for name in names if os.path.isfile(os.path.join(folder, name))]
+    if not models:
+        raise ExperimentError(f"{folder} has no {' or '.join(names)}")
+    return models[0], env_id, env_kwargs
+
+
+def enjoy(argv: list[str]) -> list[dict[str, Any]]:
+    """
+    Play a run folder's model and print the episodes; returns one record per episode (``success``, ``returns``:
+    each agent's return).
+    """
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+    from sb3_macb.maddpg import MADDPG
+
+    args = make_parser().parse_args(argv)
+    if args.n_episodes < 1:
+        raise ExperimentError(f"-n/--n-episodes must be >= 1, got {args.n_episodes}")
+    path, env_id, env_kwargs = _run_settings(args.run_folder, args.model)
+    env = make_task_vec_env(env_id, 1, env_kwargs)
+    model = MADDPG.load(path, env=env, device="cpu")  # (a pickle: see the module's docstring)
+    agents = list(model.agent_layout.agents)  # type: ignore[union-attr]
+    print(f"{path} on {env_id} {env_kwargs or ''}".rstrip())
+    env.seed(args.seed)
+    obs = env.reset()
+    records: list[dict[str, Any]] = []
+    returns = np.zeros(len(agents))
+    while len(records) < args.n_episodes:
+        action, _ = model.predict(obs, deterministic=True)
+        obs, _, dones, infos = env.step(action)
+        returns += infos[0]["agent_rewards"]
+        if dones[0]:
+            records.append({"success": bool(infos[0].get("is_success", False)), "returns": returns.copy()})
+            per_agent = ", ".join(f"{name} {value:.2f}" for name, value in zip(agents, returns))
+            print(f"episode {len(records)}: success {int(records[-1]['success'])}, return {per_agent}")
+            returns = np.zeros(len(agents))
+    mean = np.mean([r["returns"] for r in records], axis=0)
+    print(f"success rate {np.mean([r['success'] for r in records]):.2f} over {len(records)} episodes; mean return "
+          + ", ".join(f"{name} {value:.2f}" for name, value in zip(agents, mean)))  # fmt: skip
+    return records
+
+
+def main(argv: list[str]) -> int:
+    enjoy(argv)
+    return 0
