@@ -596,3 +596,27 @@ def test_an_intrinsic_critic_keeps_the_bonus_out_of_the_reward_and_learns_its_re
         MADDPG("MlpPolicy", env, intrinsic_critic=True)
     with pytest.raises(ValueError, match="intrinsic_gamma must be"):
         MADDPG("MlpPolicy", env, exploration=MACB(), intrinsic_critic=True, intrinsic_gamma=1.5)
+
+
+@pytest.mark.parametrize("continuous", [True, False], ids=["continuous", "discrete"])
+def test_predict_agents_acts_in_a_raw_pettingzoo_loop(continuous):
+    raw = lambda: simple_speaker_listener_v4.parallel_env(continuous_actions=continuous, max_cycles=5)  # noqa: E731
+    model = MADDPG("MlpPolicy", make_joint_env(raw()), policy_kwargs=SMALL, seed=0)
+    env = raw()
+    observations, _ = env.reset(seed=0)
+    steps = 0
+    while env.agents:
+        actions = model.predict_agents(observations)
+        joint = np.concatenate([observations[a] for a in model.agent_layout.agents]).astype(np.float32)
+        expected, _ = model.predict(joint, deterministic=True)
+        for agent, sl in zip(model.agent_layout.agents, model.agent_layout.action_slices):
+            assert env.action_space(agent).contains(actions[agent])
+            if continuous:
+                np.testing.assert_array_equal(actions[agent], expected[sl])
+            else:
+                assert actions[agent] == int(np.argmax(expected[sl]))
+        observations, *_ = env.step(actions)
+        steps += 1
+    assert steps == 5
+    with pytest.raises(KeyError, match="No observation for agent"):
+        model.predict_agents({})

@@ -719,6 +719,35 @@ class MADDPG(TD3):
             "_exploration_pack",
         ]
 
+    # --- acting in a raw PettingZoo loop ----------------------------------------------------------------------------
+
+    def predict_agents(self, observations: dict[str, Any], deterministic: bool = True) -> dict[str, Any]:
+        """
+        Every agent's action for one step of a PettingZoo ``ParallelEnv``, from its dict of observations (the
+        agents' own observations, as ``env.step`` and ``env.reset`` return them): continuous actions as arrays of the
+        agent's size, discrete ones as action indices, ready for ``env.step``.
+
+            observations, _ = env.reset(seed=0)
+            while env.agents:
+                observations, rewards, terminations, truncations, infos = env.step(model.predict_agents(observations))
+
+        :param observations: One observation per agent, keyed by the agent names the model was trained with.
+        :param deterministic: The actors' actions without exploration noise.
+        """
+        if self.n_runs != 1:
+            raise ValueError(f"A pack of {self.n_runs} runs acts run by run: use model.get_run(k).predict_agents(...)")
+        layout = self.agent_layout
+        assert layout is not None
+        missing = [agent for agent in layout.agents if agent not in observations]
+        if missing:
+            raise KeyError(f"No observation for agent(s) {missing}; the model's agents are {list(layout.agents)}")
+        joint = np.concatenate([np.asarray(observations[agent], dtype=np.float32).ravel() for agent in layout.agents])
+        action, _ = self.predict(joint, deterministic=deterministic)
+        return {
+            agent: int(np.argmax(action[sl])) if discrete else np.asarray(action[sl], dtype=np.float32)
+            for agent, sl, discrete in zip(layout.agents, layout.action_slices, layout.discrete_agents)
+        }
+
     # --- a pack's run as an ordinary model -------------------------------------------------------------------------
 
     def get_run(self, k: int, env: GymEnv | Any = None) -> "MADDPG":
