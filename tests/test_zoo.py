@@ -38,7 +38,7 @@ def test_yaml_holds_the_papers_settings():
 
 
 def test_tiny_train_run_from_yaml(tmp_path):
-    folder = run_train(tmp_path, "-n", "100", "--variant", "fast", "-params", "exploration.beta:0.3")
+    folder = run_train(tmp_path, "-n", "100", "--variant", "fast", "-params", "exploration.beta:0.3", "--save-replay-buffer")
     assert folder is not None and Path(folder).parent.name == "maddpg"
     model = MADDPG.load(Path(folder) / "model.zip")
     assert model.num_timesteps == 100
@@ -49,6 +49,8 @@ def test_tiny_train_run_from_yaml(tmp_path):
     assert list(data["timesteps"]) == [50, 100] and "successes" in data.files
     saved = yaml.safe_load(open(Path(folder) / "config.yml"))
     assert saved is not None
+    model.load_replay_buffer(Path(folder) / "replay_buffer.pkl")  # --save-replay-buffer: the run's 100 transitions
+    assert model.replay_buffer.pos == 100 and model.replay_buffer.exploration is model.exploration
 
 
 def test_a_negative_eval_freq_turns_evaluation_off_and_yaml_schedules_reach_the_model(tmp_path):
@@ -58,6 +60,9 @@ def test_a_negative_eval_freq_turns_evaluation_off_and_yaml_schedules_reach_the_
     assert not (Path(folder) / "evaluations.npz").exists()  # rl_zoo3's -1: no evaluation
     saved = yaml.safe_load(open(Path(folder) / "config.yml"))
     assert saved["env_kwargs"] == {"reward": "distance"} and saved["exploration"]["beta"] == "lin_0.5"
+    args = yaml.safe_load(open(Path(folder) / "args.yml"))  # the command's options, as rl_zoo3 keeps them
+    assert args["env"] == COMM and args["eval_freq"] == 0 and args["variant"] == "fast"
+    assert not (Path(folder) / "replay_buffer.pkl").exists()  # only on request
     model = MADDPG.load(Path(folder) / "model.zip")
     assert model.exploration.beta(1.0) == 0.5 and model.exploration.beta(0.0) == 0.0
     assert model.exploration.normalize == "center" and model.exploration.normalizer.updates == 50  # (learning starts at 100)

@@ -25,9 +25,11 @@ from copy import deepcopy
 from pprint import pprint
 from typing import Any
 
-import sb3_macb.envs  # noqa: F401  (registers the task ids)
-from sb3_macb.maddpg import MADDPG
+import yaml
 
+import sb3_macb.envs  # noqa: F401  (registers the task ids)
+from sb3_macb.common.atomic import atomic_write
+from sb3_macb.maddpg import MADDPG
 from sb3_macb.zoo.experiment import (
     DEFAULT_CONFIG,
     EVALUATED_KEYS,
@@ -119,6 +121,7 @@ def make_parser() -> argparse.ArgumentParser:
     add("--checkpoint-freq", type=int, default=None, help="checkpoint every N steps into the run folder")
     add("--resume", metavar="RUN_FOLDER", default=None, help="continue a checkpointed run (same command)")
     add("--keep-models", action="store_true", help="keep every checkpoint's model as RUN_FOLDER/models/step_N.zip")
+    add("--save-replay-buffer", action="store_true", help="also save the final replay buffer as RUN_FOLDER/replay_buffer.pkl")
     add("-i", "--trained-agent", default=None, help="rl_zoo3's option to continue a saved model: not supported "
         "(continue a checkpointed run with --resume RUN_FOLDER)")  # fmt: skip
     search = parser.add_argument_group("hyperparameter search (rl_zoo3's Optuna optimizer)")
@@ -292,6 +295,10 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
         keep_models=args.keep_models,
     )
     experiment.run(resume=bool(args.resume))
+    with atomic_write(os.path.join(folder, "args.yml")) as file:  # the command's options, as rl_zoo3 keeps them
+        file.write(yaml.safe_dump({k: v for k, v in sorted(vars(args).items())}).encode())
+    if args.save_replay_buffer and experiment.model is not None:
+        experiment.model.save_replay_buffer(os.path.join(folder, "replay_buffer.pkl"))
     return folder
 
 
