@@ -341,6 +341,7 @@ def test_normalized_count_bonus_has_no_offset_and_survives_save_and_load(tmp_pat
         (dict(normalize="mean"), "normalize must be one of"),
         (dict(normalize="zscore", normalize_rate=0.0), "normalize_rate"),
         (dict(normalize="zscore", std_floor=-1.0), "std_floor"),
+        (dict(normalize_rate="fast"), "normalize_rate must be a number in"),  # named even without normalize
         (dict(beta=lambda progress: progress - 0.5), "a beta schedule must give a finite number >= 0"),
     ],
 )

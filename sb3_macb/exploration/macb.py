@@ -107,10 +107,11 @@ class MACB:
                 raise ValueError(f"MACB: beta must be a finite number >= 0, got {beta!r}")
         if normalize not in NORMALIZE_MODES:
             raise ValueError(f"MACB: normalize must be one of {NORMALIZE_MODES}, got {normalize!r}")
-        try:
-            self.normalizer = BonusNormalizer(normalize, normalize_rate, std_floor) if normalize is not None else None
+        try:  # (the rate and floor are checked whatever the mode, so that a bad one is named at once)
+            normalizer = BonusNormalizer(normalize or "center", normalize_rate, std_floor)
         except ValueError as exc:
             raise ValueError(f"MACB: {exc}") from None
+        self.normalizer = normalizer if normalize is not None else None
         self.normalize = normalize
         self.normalize_rate = float(normalize_rate)
         self.std_floor = float(std_floor)
