@@ -16,6 +16,10 @@ seeds). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps;
 again resumes unfinished packs from their checkpoints and skips finished ones, so the script can be stopped at
 any moment and re-run to go on. The ``evaluations.npz`` under results/ is rewritten at every checkpoint: it always
 holds the evaluations reached so far (``run.json`` says ``complete`` only at the end).
+
+The script trains with the sb3_macb of the checkout it lives in (its folder's parent goes first on ``sys.path``, and
+the packs' processes inherit it), not with whatever sb3_macb the environment has installed: a git worktree of a fixed
+commit runs that commit's library even when the virtual environment holds an editable install of another checkout.
 """
 
 import argparse
@@ -25,6 +29,10 @@ import shlex
 import shutil
 import sys
 from concurrent.futures import ProcessPoolExecutor
+
+CHECKOUT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if sys.path[:1] != [CHECKOUT]:
+    sys.path.insert(0, CHECKOUT)  # this checkout's sb3_macb; spawned pack processes start with the same sys.path
 
 TASKS = {
     "comm-sparse": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-sparse", {"reward": "sparse"}),
@@ -120,6 +128,9 @@ def main() -> None:
     if args.pack < 1:
         parser.error("--pack must be >= 1")
     command = "python scripts/reproduce.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    import sb3_macb
+
+    print(f"sb3_macb {sb3_macb.__version__} from {os.path.dirname(os.path.abspath(sb3_macb.__file__))}", flush=True)
     packs = plan(args)
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(args.jobs, mp_context=context) as pool:

@@ -2,6 +2,7 @@
 
 import csv
 import os
+import shutil
 import importlib.util
 import subprocess
 import sys
@@ -515,3 +516,17 @@ def test_refcode_analysis_applies_its_registered_rules(tmp_path):
     assert "R1, the handling alone (maddpg+timeout_terminal against plain maddpg): **no change detected**" in report
     assert "**no effect detected**" in report and "**not reproduced**" in report
     assert "Not enough complete runs" in analysis.analyse(str(refcode), str(plain), 3, handling="timeout_terminal")
+
+
+def test_reproduce_trains_with_the_library_of_its_own_checkout(tmp_path):
+    """A worktree's reproduce.py imports that worktree's sb3_macb, not the one the environment has installed."""
+    checkout = tmp_path / "worktree"
+    (checkout / "scripts").mkdir(parents=True)
+    (checkout / "sb3_macb").mkdir()
+    shutil.copy(Path(__file__).parent.parent / "scripts" / "reproduce.py", checkout / "scripts")
+    (checkout / "sb3_macb" / "__init__.py").write_text("raise SystemExit('the worktree library was imported')\n")
+    command = [sys.executable, str(checkout / "scripts" / "reproduce.py"), "--task", "comm-sparse", "--variants", "maddpg",
+               "--work", str(tmp_path / "work"), "-o", str(tmp_path / "out")]  # fmt: skip
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 1 and "the worktree library was imported" in done.stderr, done.stderr
+    assert not (tmp_path / "work").exists() and not (tmp_path / "out").exists()
