@@ -44,7 +44,24 @@ from sb3_macb.common.snapshot import restore, snapshot
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.maddpg import MADDPG
 
-DEFAULT_CONFIG = os.path.join(os.path.dirname(__file__), "hyperparams", "maddpg.yml")
+
+
+def zoo_folder(name: str) -> str:
+    """
+    A folder of the YAML files shipped with sb3_macb (``"hyperparams"`` or ``"sweeps"``): inside the installed package
+    (``sb3_macb/zoo/<name>``, where a wheel puts them), else the top-level ``zoo/<name>`` of the checkout that this
+    package is imported from (an editable install, or a run from the repository root).
+
+    :param name: ``"hyperparams"`` or ``"sweeps"``.
+    """
+    here = os.path.dirname(os.path.abspath(__file__))
+    installed = os.path.join(here, name)
+    if os.path.isdir(installed):
+        return installed
+    return os.path.join(os.path.dirname(os.path.dirname(here)), "zoo", name)
+
+
+DEFAULT_CONFIG = os.path.join(zoo_folder("hyperparams"), "maddpg.yml")
 EXPERIMENT_FILE = "experiment.json"
 CHECKPOINT_DIR = "checkpoint"
 MODELS_DIR = "models"  # every checkpoint's model, with keep_models

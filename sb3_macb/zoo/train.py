@@ -100,7 +100,7 @@ def make_parser() -> argparse.ArgumentParser:
     add("-n", "--n-timesteps", type=int, default=None, help="environment steps (default: the YAML's n_timesteps)")
     add("-f", "--log-folder", default="logs", help="runs go to LOG_FOLDER/maddpg/ENV_N")
     add("-conf", "--conf-file", "-c", "--conf", dest="conf_file", default=None,
-        help="YAML hyperparameter file (default: the package's zoo/hyperparams/maddpg.yml)")  # fmt: skip
+        help="YAML hyperparameter file (default: zoo/hyperparams/maddpg.yml, shipped with the package)")  # fmt: skip
     add("--variant", default="", help="named overrides from the YAML's variants section, e.g. maddpg,fast")
     add("-params", "--hyperparams", nargs="+", default=[], metavar="KEY:VALUE",
         help="hyperparameter overrides (dotted keys for nested dicts: exploration.beta:0.4)")  # fmt: skip
