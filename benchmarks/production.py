@@ -1,5 +1,5 @@
 """
-The paper's workload as ``scripts/reproduce.py`` runs it, timed against its arithmetic floor and against a second
+The paper's workload as ``experiments/macb_paper/scripts/reproduce.py`` runs it, timed against its arithmetic floor and against a second
 checkout.
 
 Workload: sparse Communicative Navigation, MACB(s, x) (beta 0.8, k 512) in every run, batch 100, one gradient step

@@ -111,7 +111,7 @@ class MADDPG(TD3):
         loss, as the original MADDPG code adds (1e-3 there); 0 (the default) leaves the loss as it is. A continuous
         actor whose critic keeps asking for more than the bound drives its outputs deep into ``tanh``'s flat part:
         its gradient through ``tanh`` vanishes but Adam rescales it, so the outputs keep growing, and the action
-        stays at the bound (docs/results.md shows this in the 400-300 runs with a reward offset). The penalty pulls
+        stays at the bound (the paper study, experiments/macb_paper/README.md, shows this in the 400-300 runs with a reward offset). The penalty pulls
         the outputs back; it does not change a critic that asks for the bound, so it need not revive such a run.
         Discrete agents' logits always get ``DISCRETE_LOGIT_PENALTY`` (1e-3), as in the MADDPG paper.
     :param intrinsic_critic: Learn the exploration bonus with critics of its own (``critic_int``): the critics

@@ -22,7 +22,7 @@ from sb3_macb.zoo.experiment import ExperimentError
 
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-macb enjoy", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run_folder", help="a run folder written by sb3-macb train or scripts/reproduce.py")
+    parser.add_argument("run_folder", help="a run folder written by sb3-macb train or experiments/macb_paper/scripts/reproduce.py")
     parser.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to play")
     parser.add_argument("--model", choices=["best", "final"], default="best",
                         help="best_model.zip (by success rate; model.zip where there is none) or model.zip")  # fmt: skip

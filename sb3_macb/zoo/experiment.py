@@ -11,7 +11,7 @@ evaluations are identical, array for array, to an uninterrupted run's.
 
     python -m sb3_macb.zoo.experiment --resume FOLDER      # continue any experiment folder
 
-``sb3-macb train ... --checkpoint-freq N`` / ``--resume RUN_FOLDER`` and ``scripts/reproduce.py`` use it.
+``sb3-macb train ... --checkpoint-freq N`` / ``--resume RUN_FOLDER`` and ``experiments/macb_paper/scripts/reproduce.py`` use it.
 """
 
 import argparse

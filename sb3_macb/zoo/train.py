@@ -1,6 +1,6 @@
 """
 ``sb3-macb train``: one run of MADDPG with the zoo's YAML, as one explicit function (:func:`train`) on top of
-:mod:`sb3_macb.zoo.experiment` (the same code ``sb3-macb sweep`` and ``scripts/reproduce.py`` run), evaluated as the
+:mod:`sb3_macb.zoo.experiment` (the same code ``sb3-macb sweep`` and ``experiments/macb_paper/scripts/reproduce.py`` run), evaluated as the
 paper does (:class:`~sb3_macb.callbacks.MultiAgentEvalCallback`), with checkpoints and resume on request.
 
 It takes rl_zoo3's train options that apply to these runs (same names and spellings: ``-c``/``--conf``/``-conf``/

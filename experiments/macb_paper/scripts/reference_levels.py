@@ -1,6 +1,6 @@
 """
 Success levels of scripted listeners on sparse Communicative Navigation, for the plots and the pre-registered
-analysis (docs/results.md): two that ignore the speaker (a random landmark per episode; a tour of the landmarks)
+analysis (the study's README.md): two that ignore the speaker (a random landmark per episode; a tour of the landmarks)
 and an oracle that reads the goal. Each is evaluated as the learned runs are (20-step episodes; any-step success:
 within 0.15 of the goal at some step; final-step success: at the last step), over --episodes episodes.
 
@@ -13,12 +13,13 @@ episodes}}), read by `sb3-macb plot curves --reference` and scripts/summarize_re
 
 import argparse
 import json
+import os
 import sys
 
 import numpy as np
 
+from reference_policies import GoalListener, LandmarkTourListener, RandomLandmarkListener  # beside this script
 from sb3_macb.common.atomic import atomic_write
-from sb3_macb.envs.reference_policies import GoalListener, LandmarkTourListener, RandomLandmarkListener
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 
 POLICIES = {"random_landmark": RandomLandmarkListener, "landmark_tour": LandmarkTourListener, "oracle": GoalListener}
@@ -52,7 +53,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=10_000)
     parser.add_argument("--seed", type=int, default=12345)
-    parser.add_argument("-o", "--out", default="results/CommunicativeNavigation-sparse-reference.json")
+    parser.add_argument("-o", "--out", default=os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "CommunicativeNavigation-sparse-reference.json"))
     args = parser.parse_args()
     levels = {name: measure(cls(seed=args.seed), args.episodes, args.seed) for name, cls in POLICIES.items()}
     print("| listener | any-step success | final-step success | mean return | episodes |")

@@ -1,4 +1,4 @@
-"""The result scripts under scripts/: episodes to a threshold, cutting runs at a budget, filing a sweep."""
+"""The paper study's scripts (experiments/macb_paper/scripts/): episodes to a threshold, cutting runs at a budget, filing a sweep."""
 
 import csv
 import os
@@ -15,11 +15,13 @@ from sb3_macb.exploration import MACB
 from sb3_macb.zoo.plots import sweep_table
 from sb3_macb.zoo.sweep import load_config
 
-ROOT = Path(__file__).resolve().parents[1]
+STUDY = Path(__file__).resolve().parents[1]  # experiments/macb_paper
+ROOT = STUDY.parents[1]  # the repository
+sys.path.insert(0, str(STUDY / "scripts"))  # the scripts import their siblings, as when run from their folder
 
 
 def load_script(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, STUDY / "scripts" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -76,7 +78,7 @@ def test_file_sweep_copies_the_evaluations_and_keeps_the_table(tmp_path):
         writer.writeheader()
         writer.writerows(rows)
     out = tmp_path / "results" / "table"
-    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "file_sweep.py"), str(sweep), str(out)],
+    done = subprocess.run([sys.executable, str(STUDY / "scripts" / "file_sweep.py"), str(sweep), str(out)],
                           capture_output=True, text=True)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert (out / "beta_0.8_k_32" / "seed_0" / "evaluations.npz").is_file()
@@ -330,7 +332,7 @@ def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
 
     import torch as th
 
-    from sb3_macb.envs.reference_policies import GoalListener
+    from reference_policies import GoalListener
 
     class Conflating(GoalListener):
         def _choose(self, obs, starting):
@@ -432,7 +434,7 @@ def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tm
         command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--variants", *variants, "--seeds", "0",
                    "--fast", "--pack", str(pack), "-n", "60", "--checkpoint-freq", "40", "--work", str(tmp_path / work),
                    "-o", str(tmp_path / "out")]  # fmt: skip
-        done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=Path(__file__).parent.parent)
+        done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=STUDY)
         assert done.returncode == returncode, done.stderr
         return done.stdout + done.stderr
 
@@ -467,7 +469,7 @@ def test_reproduce_mix_seeds_fills_packs_across_seeds_with_the_same_runs(tmp_pat
         command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--variants", "maddpg", "--seeds", *seeds,
                    "--fast", "-n", "300", "--checkpoint-freq", "200", "--work", str(tmp_path / out / "work"),
                    "-o", str(tmp_path / out), *extra]  # fmt: skip
-        done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=Path(__file__).parent.parent)
+        done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=STUDY)
         assert done.returncode == 0, done.stderr
         return tmp_path / out / "CommunicativeNavigation-sparse" / "maddpg"
 
@@ -521,11 +523,12 @@ def test_refcode_analysis_applies_its_registered_rules(tmp_path):
 def test_reproduce_trains_with_the_library_of_its_own_checkout(tmp_path):
     """A worktree's reproduce.py imports that worktree's sb3_macb, not the one the environment has installed."""
     checkout = tmp_path / "worktree"
-    (checkout / "scripts").mkdir(parents=True)
+    scripts = checkout / "experiments" / "macb_paper" / "scripts"
+    scripts.mkdir(parents=True)
     (checkout / "sb3_macb").mkdir()
-    shutil.copy(Path(__file__).parent.parent / "scripts" / "reproduce.py", checkout / "scripts")
+    shutil.copy(STUDY / "scripts" / "reproduce.py", scripts)
     (checkout / "sb3_macb" / "__init__.py").write_text("raise SystemExit('the worktree library was imported')\n")
-    command = [sys.executable, str(checkout / "scripts" / "reproduce.py"), "--task", "comm-sparse", "--variants", "maddpg",
+    command = [sys.executable, str(scripts / "reproduce.py"), "--task", "comm-sparse", "--variants", "maddpg",
                "--work", str(tmp_path / "work"), "-o", str(tmp_path / "out")]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 1 and "the worktree library was imported" in done.stderr, done.stderr

@@ -1,5 +1,5 @@
 """
-Descriptive tables of how runs evolve, complete or not: the figures docs/results.md quotes beside the
+Descriptive tables of how runs evolve, complete or not: the figures the study's README.md quotes beside the
 pre-registered analysis (``scripts/headline_analysis.py``), from the files alone.
 
     python scripts/trajectories.py results/CommunicativeNavigation-sparse-paper

@@ -1,5 +1,5 @@
 """
-The pre-registered analysis of the refcode experiment (docs/results.md, "The reference code's episode handling"),
+The pre-registered analysis of the refcode experiment (the study's README.md, "The reference code's episode handling"),
 applied mechanically:
 
     python scripts/refcode_analysis.py results/CommunicativeNavigation-sparse-refcode \\

@@ -8,7 +8,7 @@ each run's evaluations as ``results/<Task>-<reward>[-<suffix>]/<variant>/seed_<s
     python scripts/reproduce.py --task comm-sparse --variants maddpg macb_joint macb_local macb_constant macb_k32 \\
         --seeds 0 1 2 3 4 --fast --suffix 4e4 --pack 5 -j 2
 
-Variants are those of ``zoo/hyperparams/maddpg.yml``, alone or combined with commas (``maddpg,refcode``: filed as
+Variants are those of the repository's ``zoo/hyperparams/maddpg.yml``, alone or combined with commas (``maddpg,refcode``: filed as
 ``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
 runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
 would be alone), or with ``--mix-seeds`` the runs of all seeds, ``--pack`` to a process (for few variants and many
@@ -17,7 +17,7 @@ again resumes unfinished packs from their checkpoints and skips finished ones, s
 any moment and re-run to go on. The ``evaluations.npz`` under results/ is rewritten at every checkpoint: it always
 holds the evaluations reached so far (``run.json`` says ``complete`` only at the end).
 
-The script trains with the sb3_macb of the checkout it lives in (its folder's parent goes first on ``sys.path``, and
+The script trains with the sb3_macb of the checkout it lives in (the repository root goes first on ``sys.path``, and
 the packs' processes inherit it), not with whatever sb3_macb the environment has installed: a git worktree of a fixed
 commit runs that commit's library even when the virtual environment holds an editable install of another checkout.
 """
@@ -30,7 +30,8 @@ import shutil
 import sys
 from concurrent.futures import ProcessPoolExecutor
 
-CHECKOUT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # experiments/macb_paper
+CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
 if sys.path[:1] != [CHECKOUT]:
     sys.path.insert(0, CHECKOUT)  # this checkout's sb3_macb; spawned pack processes start with the same sys.path
 
@@ -122,8 +123,8 @@ def main() -> None:
     parser.add_argument("--keep-models", action="store_true",
                         help="keep every checkpoint's model in <work>/<pack>/models/ (for scripts/collapse_diagnostics.py)")
     parser.add_argument("--suffix", default="", help="results/<Task>-<reward>-SUFFIX/")
-    parser.add_argument("-o", "--out", default="results")
-    parser.add_argument("--work", default=os.path.join("logs", "reproduce"), help="checkpoints (not for git)")
+    parser.add_argument("-o", "--out", default=os.path.join(STUDY, "results"), help="default: the study's results/")
+    parser.add_argument("--work", default=os.path.join(STUDY, "logs", "reproduce"), help="checkpoints (not for git; default: the study's logs/reproduce)")
     args = parser.parse_args()
     if args.pack < 1:
         parser.error("--pack must be >= 1")

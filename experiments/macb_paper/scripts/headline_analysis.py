@@ -1,5 +1,5 @@
 """
-The pre-registered analysis of the headline experiment (docs/results.md, "pre-registered analysis"), applied
+The pre-registered analysis of the headline experiment (the study's README.md, "pre-registered analysis"), applied
 mechanically so that its decisions do not depend on who reads the data:
 
     python scripts/headline_analysis.py results/CommunicativeNavigation-sparse-paper --expected-seeds 3
@@ -185,7 +185,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("task_folders", nargs="+")
     parser.add_argument("--expected-seeds", type=int, required=True, help="the seeds per variant registered")
-    parser.add_argument("--reference", default="results/CommunicativeNavigation-sparse-reference.json",
+    parser.add_argument("--reference", default=os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "CommunicativeNavigation-sparse-reference.json"),
                         help="the scripted listeners' levels (scripts/reference_levels.py)")  # fmt: skip
     args = parser.parse_args()
     for folder in args.task_folders:

@@ -1,5 +1,5 @@
 """
-The pre-registered analysis of 2-Agent Navigation at the paper's size (docs/results.md, "2-Agent Navigation at the
+The pre-registered analysis of 2-Agent Navigation at the paper's size (the study's README.md, "2-Agent Navigation at the
 paper's size: pre-registered analysis"), applied mechanically:
 
     python scripts/nav_analysis.py results/TwoAgentNavigation-sparse-paper-1e6 --expected-seeds 3
