@@ -163,7 +163,8 @@ class MultiAgentReplayBuffer(ReplayBuffer):
         pos, full, size, n_envs = (int(v) for v in arrays["_position"])
         if (size, n_envs) != (self.buffer_size, self.n_envs):
             raise ValueError(
-                f"The saved replay buffer has size {size} with {n_envs} envs; this one has {self.buffer_size} and {self.n_envs}"
+                f"The saved replay buffer has size {size} with {n_envs} envs; "
+                f"this one has {self.buffer_size} and {self.n_envs}"
             )
         if not (0 <= pos < size or (pos == size and not full)):
             raise ValueError(f"the saved replay buffer's write position {pos} lies outside its {size} rows")
@@ -176,7 +177,9 @@ class MultiAgentReplayBuffer(ReplayBuffer):
                 raise ValueError(f"the saved replay buffer has no '{name}' array")
             saved = arrays[name]
             if saved.shape != (rows, *mine.shape[1:]):
-                raise ValueError(f"the saved replay buffer's '{name}' has shape {saved.shape}, expected {(rows, *mine.shape[1:])}")
+                raise ValueError(
+                    f"the saved replay buffer's '{name}' has shape {saved.shape}, expected {(rows, *mine.shape[1:])}"
+                )
         for name in self._array_names:
             if getattr(self, name) is not None:
                 getattr(self, name)[:rows] = arrays[name]

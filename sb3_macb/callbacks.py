@@ -6,7 +6,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
-from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
@@ -265,7 +264,9 @@ class MultiAgentEvalCallback(EvalCallback):
             if self.callback is not None or self.best_model_save_path is not None:
                 raise ValueError("Early stopping and best-model saving work on one run, not on a pack of runs")
             if self.eval_env.num_envs % n_runs:
-                raise ValueError(f"A pack of {n_runs} runs needs an eval env with n envs per run, got {self.eval_env.num_envs}")
+                raise ValueError(
+                    f"A pack of {n_runs} runs needs an eval env with n envs per run, got {self.eval_env.num_envs}"
+                )
             if self.run_log_paths is not None and len(self.run_log_paths) != n_runs:
                 raise ValueError(f"run_log_paths needs one folder per run ({n_runs}), got {len(self.run_log_paths)}")
         if self.run_episodes is None:
@@ -431,7 +432,10 @@ class MultiAgentEvalCallback(EvalCallback):
             rate = "n/a" if success_rate is None else f"{success_rate:.2f}"
             runs = "" if self.n_runs == 1 else f" (mean of {self.n_runs} runs)"
             window = "" if self.log_freq == 1 else f", mean of the last {self.log_freq} evaluations {self._recent_rate():.2f}"
-            print(f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}{window}, return {mean_reward:.2f}{runs}")
+            print(
+                f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}{window}, "
+                f"return {mean_reward:.2f}{runs}"
+            )
         if self.dump_logs and report:
             self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
             self.logger.dump(self.num_timesteps)

@@ -31,7 +31,9 @@ class BlockAdam(th.optim.Adam):
         self._blocks = {id(p): (blocks[i] if i < len(blocks) and blocks[i] else None) for i, p in enumerate(params)}
         self._cache: dict[int, Any] = {}
 
-    def _views(self, p: th.Tensor, state: dict[str, Any], amsgrad: bool) -> tuple[list[tuple[int, int]], list[list[th.Tensor]]]:
+    def _views(
+        self, p: th.Tensor, state: dict[str, Any], amsgrad: bool
+    ) -> tuple[list[tuple[int, int]], list[list[th.Tensor]]]:
         """The blocks of ``p`` and the views of its parameter and state tensors (cached: they are updated in place)."""
         cached = self._cache.get(id(p))
         if cached is None or cached[0] is not state["exp_avg"]:

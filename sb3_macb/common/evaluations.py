@@ -65,7 +65,8 @@ def load(path: str, max_episodes: int | None = None) -> dict[str, np.ndarray]:
 
 def is_complete(run_folder: str) -> bool:
     """Whether the run in ``run_folder`` ran to its end: its ``run.json`` says ``complete`` (runs filed by
-    ``experiments/macb_paper/scripts/reproduce.py``; a run in progress has evaluations up to its last checkpoint and no such mark)."""
+    ``experiments/macb_paper/scripts/reproduce.py``; a run in progress has evaluations up to its last checkpoint and
+    no such mark)."""
     path = os.path.join(run_folder, "run.json")
     if not os.path.isfile(path):
         return False

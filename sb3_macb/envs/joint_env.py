@@ -223,7 +223,11 @@ class JointEnv(gym.Env):
         truncated = any(truncs) and not terminated
 
         info: dict[str, Any] = {"agent_rewards": agent_rewards, "agent_infos": infos}
-        successes = [infos[agent]["is_success"] for agent in agents if isinstance(infos.get(agent), dict) and "is_success" in infos[agent]]
+        successes = [
+            infos[agent]["is_success"]
+            for agent in agents
+            if isinstance(infos.get(agent), dict) and "is_success" in infos[agent]
+        ]
         if successes:
             info["is_success"] = bool(all(successes))
         reward = float(agent_rewards.sum() if self.team_reward == "sum" else agent_rewards.mean())

@@ -10,7 +10,7 @@ position, both landmarks and the other agent relative to it. Action: a 2-D force
 
 from typing import Any
 
-from sb3_macb.envs.tasks import TwoAgentNavigationScenario, TaskParallelEnv, to_aec
+from sb3_macb.envs.tasks import TaskParallelEnv, TwoAgentNavigationScenario, to_aec
 
 NAME = "two_agent_navigation_v0"
 

@@ -99,9 +99,13 @@ class CountMinSketch:
     @classmethod
     def from_arrays(cls, counts: np.ndarray, widths: np.ndarray, stats: np.ndarray) -> "CountMinSketch":
         """A sketch from :meth:`arrays` (the counters copied, so that the sketch owns them)."""
-        widths = np.asarray(widths).view(np.uint64) if np.asarray(widths).dtype == np.int64 else np.asarray(widths, dtype=np.uint64)
+        widths = (
+            np.asarray(widths).view(np.uint64) if np.asarray(widths).dtype == np.int64 else np.asarray(widths, dtype=np.uint64)
+        )
         if len(counts) != int(widths.sum()):
-            raise ValueError(f"count-min sketch: {len(counts)} counters do not match row widths summing to {int(widths.sum())}")
+            raise ValueError(
+                f"count-min sketch: {len(counts)} counters do not match row widths summing to {int(widths.sum())}"
+            )
         sketch = cls.__new__(cls)
         sketch.widths = widths.copy()
         sketch.offsets = np.concatenate([[0], np.cumsum(sketch.widths)[:-1]]).astype(np.int64)

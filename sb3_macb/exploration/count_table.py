@@ -213,7 +213,9 @@ class CountTable:
         keys, counts = np.array(keys, dtype=np.uint64), np.array(counts, dtype=np.uint32)
         capacity = len(keys)
         if capacity < 16 or capacity & (capacity - 1) or counts.shape != keys.shape:
-            raise ValueError(f"a count table's slot arrays need one power-of-two length >= 16, got {keys.shape} and {counts.shape}")
+            raise ValueError(
+                f"a count table's slot arrays need one power-of-two length >= 16, got {keys.shape} and {counts.shape}"
+            )
         table = cls.__new__(cls)
         table.keys, table.counts = keys, counts
         occupied = keys != _EMPTY

@@ -17,7 +17,9 @@ def make_exploration(config: "MACB | RND | dict[str, Any] | None") -> "MACB | RN
     if config is None or isinstance(config, (MACB, RND)):
         return config
     if not isinstance(config, dict):
-        raise TypeError(f"exploration must be an MACB, an RND, a dict of their arguments, or None; got {type(config).__name__}")
+        raise TypeError(
+            f"exploration must be an MACB, an RND, a dict of their arguments, or None; got {type(config).__name__}"
+        )
     settings = dict(config)
     name = settings.pop("estimator", "macb")
     if name not in ESTIMATORS:

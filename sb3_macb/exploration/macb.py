@@ -1,7 +1,8 @@
 """MACB: Multi-Agent Count-Based exploration with SimHash (the paper's section 4 and Algorithm 1)."""
 
 import inspect
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -96,8 +97,15 @@ class MACB:
         if callable(beta):
             for progress in (1.0, 0.0):
                 value = beta(progress)
-                if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value) or value < 0:
-                    raise ValueError(f"MACB: a beta schedule must give a finite number >= 0, gave {value!r} at progress {progress}")
+                if (
+                    isinstance(value, bool)
+                    or not isinstance(value, (int, float, np.integer, np.floating))
+                    or not np.isfinite(value)
+                    or value < 0
+                ):
+                    raise ValueError(
+                        f"MACB: a beta schedule must give a finite number >= 0, gave {value!r} at progress {progress}"
+                    )
         else:
             try:
                 beta = float(beta)
@@ -123,7 +131,11 @@ class MACB:
                 CountMinSketch(sketch_depth, 2)  # checks the depth; the width is checked below
             except ValueError as exc:
                 raise ValueError(f"MACB: {exc}") from None
-            if isinstance(sketch_width, bool) or not isinstance(sketch_width, (int, np.integer)) or not 2 <= sketch_width <= 1 << 28:
+            if (
+                isinstance(sketch_width, bool)
+                or not isinstance(sketch_width, (int, np.integer))
+                or not 2 <= sketch_width <= 1 << 28
+            ):
                 raise ValueError(f"MACB: sketch_width must be an integer in [2, 2**28], got {sketch_width!r}")
         self.table = table
         self.sketch_depth = int(sketch_depth)
@@ -168,8 +180,16 @@ class MACB:
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # MACBs pickled by sb3_macb < 0.10 predate normalisation and schedules
-        defaults = {"normalize": None, "normalize_rate": 0.01, "std_floor": 0.01, "normalizer": None, "progress_remaining": 1.0,
-                    "table": "exact", "sketch_depth": 4, "sketch_width": 1_000_003}  # fmt: skip
+        defaults = {
+            "normalize": None,
+            "normalize_rate": 0.01,
+            "std_floor": 0.01,
+            "normalizer": None,
+            "progress_remaining": 1.0,
+            "table": "exact",
+            "sketch_depth": 4,
+            "sketch_width": 1_000_003,
+        }
         self.__dict__.update({**defaults, **state})
 
     @property
@@ -380,4 +400,6 @@ class MACB:
         if not self.counts:
             self._constant_total = int(state["constant_total"])
         if self.normalizer is not None:
-            self.normalizer.load_state_dict({name[len("normalizer.") :]: t for name, t in state.items() if name.startswith("normalizer.")})
+            self.normalizer.load_state_dict(
+                {name[len("normalizer.") :]: t for name, t in state.items() if name.startswith("normalizer.")}
+            )

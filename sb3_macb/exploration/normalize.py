@@ -31,7 +31,12 @@ class BonusNormalizer:
             raise ValueError(f"normalize must be one of {NORMALIZE_MODES}, got {mode!r}")
         if not (isinstance(rate, (int, float)) and not isinstance(rate, bool) and 0 < rate <= 1):
             raise ValueError(f"normalize_rate must be a number in (0, 1], got {rate!r}")
-        if not (isinstance(std_floor, (int, float)) and not isinstance(std_floor, bool) and std_floor > 0 and np.isfinite(std_floor)):
+        if not (
+            isinstance(std_floor, (int, float))
+            and not isinstance(std_floor, bool)
+            and std_floor > 0
+            and np.isfinite(std_floor)
+        ):
             raise ValueError(f"std_floor must be a number > 0, got {std_floor!r}")
         self.mode = mode
         self.rate = float(rate)
@@ -81,7 +86,9 @@ class BonusNormalizer:
         empty = np.zeros(0)
         return {
             "mean": th.from_numpy(np.array(self.mean if self.mean is not None else empty, dtype=np.float64)),
-            "mean_square": th.from_numpy(np.array(self.mean_square if self.mean_square is not None else empty, dtype=np.float64)),
+            "mean_square": th.from_numpy(
+                np.array(self.mean_square if self.mean_square is not None else empty, dtype=np.float64)
+            ),
             "updates": th.tensor(self.updates, dtype=th.int64),
         }
 

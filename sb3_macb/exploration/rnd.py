@@ -1,7 +1,8 @@
 """RND: Random Network Distillation as an exploration bonus, in the slot MACB's count bonus takes."""
 
 import copy
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -170,8 +171,13 @@ class RND:
     def errors(self, observations: np.ndarray) -> np.ndarray:
         """The predictor's squared error on each observation, (n, n_tables) float64 (nothing is trained)."""
         with th.no_grad():
-            return np.stack([(p(x) - t(x)).pow(2).mean(dim=1).double().numpy()
-                             for x, p, t in zip(self._inputs(observations), self.predictors, self.targets)], axis=1)  # fmt: skip
+            return np.stack(
+                [
+                    (p(x) - t(x)).pow(2).mean(dim=1).double().numpy()
+                    for x, p, t in zip(self._inputs(observations), self.predictors, self.targets)
+                ],
+                axis=1,
+            )
 
     def bonus(self, keys: np.ndarray, training: bool = True, observations: np.ndarray | None = None) -> np.ndarray:
         """
@@ -241,4 +247,6 @@ class RND:
         self.optimizer.load_state_dict(saved)
         self.total_count = int(state["total_count"])
         if self.normalizer is not None:
-            self.normalizer.load_state_dict({name[len("normalizer.") :]: t for name, t in state.items() if name.startswith("normalizer.")})
+            self.normalizer.load_state_dict(
+                {name[len("normalizer.") :]: t for name, t in state.items() if name.startswith("normalizer.")}
+            )

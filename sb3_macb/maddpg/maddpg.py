@@ -60,8 +60,8 @@ class MADDPG(TD3):
     random streams (``run_seeds``), and ``get_run(k)`` hands run ``k`` out as an ordinary model. Step counts
     (``total_timesteps``, ``learning_starts``, ``num_timesteps``) are, as everywhere in SB3, summed over all envs:
     K runs of T steps each are ``learn(K * T)``. ``buffer_size`` and ``gradient_steps=-1`` are per run: each run
-    keeps ``buffer_size`` transitions and does as many updates as a solo run. Run ``k`` is the same experiment as a model with ``n_runs=1`` and
-    ``seed=run_seeds[k]`` (bit for bit on CPU's oneDNN path, see the tests).
+    keeps ``buffer_size`` transitions and does as many updates as a solo run. Run ``k`` is the same experiment as a
+    model with ``n_runs=1`` and ``seed=run_seeds[k]`` (bit for bit on CPU's oneDNN path, see the tests).
 
     :param policy: The policy model to use (``"MlpPolicy"``).
     :param env: The environment to learn from: a joint env, a PettingZoo env, or a registered env id.
@@ -105,14 +105,15 @@ class MADDPG(TD3):
         units whose gradient is zero (dead ReLUs) decay into the denormal range after some 10^4-10^5 updates, and
         arithmetic on denormals is 10-100 times slower on many CPUs (Intel's in particular): on an Intel Xeon the
         400-300 pack of three trained 1.7 times faster with flushing from step ~60,000 on. Values that small do not
-        change what is learned, but a run with flushing is not bit-identical to one without. The setting holds for the calling thread (torch's intra-op
-        threads keep their own); with one torch thread it covers all of training.
+        change what is learned, but a run with flushing is not bit-identical to one without. The setting holds for
+        the calling thread (torch's intra-op threads keep their own); with one torch thread it covers all of training.
     :param preactivation_reg: Weight of the mean squared pre-``tanh`` output of the continuous actors in the actor
         loss, as the original MADDPG code adds (1e-3 there); 0 (the default) leaves the loss as it is. A continuous
         actor whose critic keeps asking for more than the bound drives its outputs deep into ``tanh``'s flat part:
         its gradient through ``tanh`` vanishes but Adam rescales it, so the outputs keep growing, and the action
-        stays at the bound (the paper study, experiments/macb_paper/README.md, shows this in the 400-300 runs with a reward offset). The penalty pulls
-        the outputs back; it does not change a critic that asks for the bound, so it need not revive such a run.
+        stays at the bound (the paper study, experiments/macb_paper/README.md, shows this in the 400-300 runs with a
+        reward offset). The penalty pulls the outputs back; it does not change a critic that asks for the bound, so
+        it need not revive such a run.
         Discrete agents' logits always get ``DISCRETE_LOGIT_PENALTY`` (1e-3), as in the MADDPG paper.
     :param intrinsic_critic: Learn the exploration bonus with critics of its own (``critic_int``): the critics
         learn the reward alone, the intrinsic critics learn ``bonus + intrinsic_gamma * Q_int(s', pi'(s'))`` with no
@@ -171,14 +172,28 @@ class MADDPG(TD3):
         intrinsic_coef: float = 1.0,
         _init_setup_model: bool = True,
     ):
-        if isinstance(preactivation_reg, bool) or not isinstance(preactivation_reg, (int, float, np.floating, np.integer)) \
-                or not np.isfinite(preactivation_reg) or preactivation_reg < 0:
+        if (
+            isinstance(preactivation_reg, bool)
+            or not isinstance(preactivation_reg, (int, float, np.floating, np.integer))
+            or not np.isfinite(preactivation_reg)
+            or preactivation_reg < 0
+        ):
             raise ValueError(f"preactivation_reg must be a finite number >= 0, got {preactivation_reg!r}")
-        for name, value, low, high in (("intrinsic_gamma", intrinsic_gamma, 0.0, 1.0), ("intrinsic_coef", intrinsic_coef, 0.0, None)):
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or not np.isfinite(value) \
-                    or value < low or (high is not None and value > high):
+        for name, value, low, high in (
+            ("intrinsic_gamma", intrinsic_gamma, 0.0, 1.0),
+            ("intrinsic_coef", intrinsic_coef, 0.0, None),
+        ):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float, np.floating, np.integer))
+                or not np.isfinite(value)
+                or value < low
+                or (high is not None and value > high)
+            ):
                 raise ValueError(f"{name} must be a number in [{low}, {high if high is not None else 'inf'}), got {value!r}")
-        if policy_kwargs and ({"agent_layout", "centralized_critic", "share_actors", "share_critics", "intrinsic_critic"} & set(policy_kwargs)):
+        if policy_kwargs and (
+            {"agent_layout", "centralized_critic", "share_actors", "share_critics", "intrinsic_critic"} & set(policy_kwargs)
+        ):
             raise ValueError(
                 "Pass centralized_critic to MADDPG itself (and share_parameters, share_critics), not in policy_kwargs; "
                 "the agent layout is read from the env"
@@ -199,13 +214,19 @@ class MADDPG(TD3):
             seed = self.run_seeds[0]  # type: ignore[index]
         self.agent_layout: AgentLayout | None = None
         self.centralized_critic = centralized_critic
-        if not (share_parameters is None or share_parameters in ("all", "prefix") or isinstance(share_parameters, (list, tuple))):
-            raise ValueError(f"share_parameters must be None, 'all', 'prefix' or a list of lists of agent names, got {share_parameters!r}")
+        if not (
+            share_parameters is None or share_parameters in ("all", "prefix") or isinstance(share_parameters, (list, tuple))
+        ):
+            raise ValueError(
+                f"share_parameters must be None, 'all', 'prefix' or a list of lists of agent names, got {share_parameters!r}"
+            )
         if share_critics and share_parameters is None:
             raise ValueError("share_critics=True shares critics in the groups of share_parameters: give share_parameters too")
         if share_critics and not centralized_critic:
             raise ValueError("Critics can be shared only when they are centralized (centralized_critic=True)")
-        self.share_parameters = [list(g) for g in share_parameters] if isinstance(share_parameters, (list, tuple)) else share_parameters
+        self.share_parameters = (
+            [list(g) for g in share_parameters] if isinstance(share_parameters, (list, tuple)) else share_parameters
+        )
         self.share_critics = bool(share_critics)
         if isinstance(exploration, (list, tuple)):
             # the same MACB object given for several runs ([MACB(...)] * K) is copied: every run counts in its own table
@@ -410,7 +431,9 @@ class MADDPG(TD3):
         if "exploration" in self.__dict__:  # a model saved by sb3_macb 0.1 held one MACB as "exploration"
             self.explorations = [self.__dict__.pop("exploration")]
         if self.n_envs % self.n_runs:
-            raise ValueError(f"A pack of {self.n_runs} runs needs a number of envs divisible by {self.n_runs}, got {self.n_envs}")
+            raise ValueError(
+                f"A pack of {self.n_runs} runs needs a number of envs divisible by {self.n_runs}, got {self.n_envs}"
+            )
         self._convert_train_freq()  # (SB3's, idempotent: checked here, before the replay buffer is allocated)
         if self.n_runs > 1 and self.train_freq.unit != TrainFrequencyUnit.STEP:
             raise ValueError("train_freq: a pack counts it in steps ((N, 'step')); SB3 counts episodes over all envs")
@@ -426,7 +449,9 @@ class MADDPG(TD3):
             if self.replay_buffer_class is None:
                 self.replay_buffer_class = MACBReplayBuffer
             elif not issubclass(self.replay_buffer_class, MACBReplayBuffer):
-                raise TypeError(f"exploration=MACB needs a replay buffer deriving from MACBReplayBuffer, not {self.replay_buffer_class}")
+                raise TypeError(
+                    f"exploration=MACB needs a replay buffer deriving from MACBReplayBuffer, not {self.replay_buffer_class}"
+                )
         elif self.replay_buffer_class is None:
             self.replay_buffer_class = MultiAgentReplayBuffer
         # The layout-derived arguments are passed while building, not stored in the user's kwargs

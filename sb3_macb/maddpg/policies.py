@@ -89,8 +89,7 @@ def check_share_groups(layout: AgentLayout, groups: list[list[int]]) -> None:
         if len(spec) > 1:
             names = [layout.agents[i] for i in group]
             raise ValueError(
-                f"Agents {names} cannot share networks: their (observation size, action size, discrete) differ: "
-                f"{sorted(spec)}"
+                f"Agents {names} cannot share networks: their (observation size, action size, discrete) differ: {sorted(spec)}"
             )
 
 
@@ -512,4 +511,3 @@ class MADDPGPolicy(BasePolicy):
 
 
 MlpPolicy = MADDPGPolicy
-

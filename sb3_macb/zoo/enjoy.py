@@ -21,8 +21,12 @@ from sb3_macb.zoo.experiment import ExperimentError
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sb3-macb enjoy", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run_folder", help="a run folder written by sb3-macb train or experiments/macb_paper/scripts/reproduce.py")
+    parser = argparse.ArgumentParser(
+        prog="sb3-macb enjoy", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "run_folder", help="a run folder written by sb3-macb train or experiments/macb_paper/scripts/reproduce.py"
+    )
     parser.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to play")
     parser.add_argument("--model", choices=["best", "final"], default="best",
                         help="best_model.zip (by success rate; model.zip where there is none) or model.zip")  # fmt: skip
@@ -43,7 +47,9 @@ def _run_settings(folder: str, which: str) -> tuple[str, str, dict[str, Any]]:
         with open(config_path) as file:
             config = yaml.safe_load(file) or {}
     except OSError:
-        raise ExperimentError(f"{folder} has no config.yml (written when a run completes): not a finished run folder") from None
+        raise ExperimentError(
+            f"{folder} has no config.yml (written when a run completes): not a finished run folder"
+        ) from None
     except yaml.YAMLError:
         raise ExperimentError(f"{config_path} is not valid YAML") from None
     if not isinstance(config, dict):

@@ -11,7 +11,8 @@ evaluations are identical, array for array, to an uninterrupted run's.
 
     python -m sb3_macb.zoo.experiment --resume FOLDER      # continue any experiment folder
 
-``sb3-macb train ... --checkpoint-freq N`` / ``--resume RUN_FOLDER`` and ``experiments/macb_paper/scripts/reproduce.py`` use it.
+``sb3-macb train ... --checkpoint-freq N`` / ``--resume RUN_FOLDER`` and the paper study's
+``experiments/macb_paper/scripts/reproduce.py`` use it.
 """
 
 import argparse
@@ -25,9 +26,10 @@ import random
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from copy import deepcopy
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -43,7 +45,6 @@ from sb3_macb.common.atomic import AtomicWriteError, atomic_write, remove_leftov
 from sb3_macb.common.snapshot import restore, snapshot
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.maddpg import MADDPG
-
 
 
 def zoo_folder(name: str) -> str:
@@ -178,7 +179,10 @@ def apply_overrides(hyperparams: dict[str, Any], overrides: dict[str, Any]) -> d
 
 
 def load_hyperparams(
-    env_id: str, conf_file: str | None = None, variants: tuple[str, ...] | list[str] = (), overrides: dict[str, Any] | None = None
+    env_id: str,
+    conf_file: str | None = None,
+    variants: tuple[str, ...] | list[str] = (),
+    overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """
     The env's entry of a zoo YAML file with variants and overrides applied (dotted keys set nested values), checked
@@ -206,7 +210,11 @@ def load_hyperparams(
         raise ExperimentError(f"{conf_file} has no entry for env '{env_id}'; it has {envs}")
     hyperparams = deepcopy(config[env_id])
     known = config.get("variants") or {}
-    if not isinstance(hyperparams, dict) or not isinstance(known, dict) or not all(isinstance(v, dict) for v in known.values()):
+    if (
+        not isinstance(hyperparams, dict)
+        or not isinstance(known, dict)
+        or not all(isinstance(v, dict) for v in known.values())
+    ):
         raise ExperimentError(f"{conf_file}: the entry of '{env_id}' and each variant must be a mapping of hyperparameters")
     for name in variants:
         if name not in known:
@@ -306,7 +314,12 @@ def make_callbacks(hyperparams: dict[str, Any], unsafe_eval: bool = False, folde
 
 def _inside_run_folder(value: Any, where: str, folder: str | None) -> str:
     """``value`` (a relative path that stays inside the run's folder) joined to ``folder``."""
-    if not isinstance(value, str) or not value or os.path.isabs(value) or os.path.normpath(value).split(os.sep)[0] == os.pardir:
+    if (
+        not isinstance(value, str)
+        or not value
+        or os.path.isabs(value)
+        or os.path.normpath(value).split(os.sep)[0] == os.pardir
+    ):
         raise ExperimentError(f"{where} must be a relative path inside the run's folder, got {value!r}")
     return os.path.join(folder or ".", value)
 
@@ -355,9 +368,13 @@ def check_values(hyperparams: dict[str, Any], where: str) -> None:
     if hyperparams.get("policy", "MlpPolicy") != "MlpPolicy":
         raise ExperimentError(f"{where}: 'policy' must be 'MlpPolicy' (MADDPG's only policy), got {hyperparams['policy']!r}")
     if hyperparams.get("noise_type") not in (None, "normal", "ornstein-uhlenbeck"):
-        raise ExperimentError(f"{where}: 'noise_type' must be 'normal', 'ornstein-uhlenbeck' or null, got {hyperparams['noise_type']!r}")
+        raise ExperimentError(
+            f"{where}: 'noise_type' must be 'normal', 'ornstein-uhlenbeck' or null, got {hyperparams['noise_type']!r}"
+        )
     if not valid_device(hyperparams.get("device", "auto")):
-        raise ExperimentError(f"{where}: 'device' must be 'auto' or a torch device such as 'cpu' or 'cuda', got {hyperparams['device']!r}")
+        raise ExperimentError(
+            f"{where}: 'device' must be 'auto' or a torch device such as 'cpu' or 'cuda', got {hyperparams['device']!r}"
+        )
     exploration = hyperparams.get("exploration")
     if exploration is not None:
         from sb3_macb.exploration.estimators import make_exploration
@@ -410,7 +427,13 @@ def unsupported_keys(hyperparams: dict[str, Any]) -> list[str]:
 
     def used(key: str) -> bool:
         value = hyperparams.get(key)
-        return not (value is None or value is False or value == {} or value == [] or (key == "frame_stack" and type(value) is int and value == 1))
+        return not (
+            value is None
+            or value is False
+            or value == {}
+            or value == []
+            or (key == "frame_stack" and type(value) is int and value == 1)
+        )
 
     return [key for key in UNSUPPORTED if used(key)]
 
@@ -435,7 +458,9 @@ def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict
             if key == "learning_rate":
                 kwargs[key] = linear_schedule_of(value, "hyperparameter 'learning_rate'", low_open=True)
             elif key == "replay_buffer_class" and not unsafe_eval:
-                raise ExperimentError(f"hyperparameter '{key}' names a class as a string, which would be evaluated; {UNSAFE_HINT}")
+                raise ExperimentError(
+                    f"hyperparameter '{key}' names a class as a string, which would be evaluated; {UNSAFE_HINT}"
+                )
             else:
                 kwargs[key] = evaluate_string(value, f"hyperparameter '{key}'", unsafe_eval)
     if "exploration" in kwargs:
@@ -452,11 +477,17 @@ def model_kwargs(hyperparams: dict[str, Any], unsafe_eval: bool = False) -> dict
 
 def _check_net_arch(net_arch: Any) -> None:
     def layers(value: Any) -> bool:
-        return isinstance(value, (list, tuple)) and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in value)
+        return isinstance(value, (list, tuple)) and all(
+            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in value
+        )
 
-    if not (layers(net_arch) or (isinstance(net_arch, dict) and set(net_arch) <= {"pi", "qf"} and all(map(layers, net_arch.values())))):
+    if not (
+        layers(net_arch)
+        or (isinstance(net_arch, dict) and set(net_arch) <= {"pi", "qf"} and all(map(layers, net_arch.values())))
+    ):
         raise ExperimentError(
-            f"policy_kwargs 'net_arch' must be a list of layer sizes (integers >= 1) or dict(pi=[...], qf=[...]), got {net_arch!r}"
+            "policy_kwargs 'net_arch' must be a list of layer sizes (integers >= 1) or dict(pi=[...], qf=[...]), "
+            f"got {net_arch!r}"
         )
 
 
@@ -535,10 +566,15 @@ class ExperimentConfig:
         if any(key != common[0] for key in common):
             first = self.runs[0].hyperparams
             for run in self.runs[1:]:
-                diff = sorted(k for k in set(first) | set(run.hyperparams) if k not in PACKABLE and first.get(k) != run.hyperparams.get(k))
+                diff = sorted(
+                    k
+                    for k in set(first) | set(run.hyperparams)
+                    if k not in PACKABLE and first.get(k) != run.hyperparams.get(k)
+                )
                 if diff:
                     raise ExperimentError(
-                        f"Runs of one pack may differ only in {list(PACKABLE)}; seed {run.seed} {run.variants} differs in {diff}"
+                        f"Runs of one pack may differ only in {list(PACKABLE)}; "
+                        f"seed {run.seed} {run.variants} differs in {diff}"
                     )
 
     def comparable(self) -> dict[str, Any]:
@@ -570,8 +606,13 @@ def settings_diff(old: Any, new: Any, where: str = "") -> list[str]:
     :param where: The key of ``old`` and ``new`` (for the recursion).
     """
     if isinstance(old, dict) and isinstance(new, dict):
-        return [line for key in sorted(set(old) | set(new), key=str)
-                for line in settings_diff(old.get(key, "(absent)"), new.get(key, "(absent)"), f"{where}.{key}" if where else str(key))]  # fmt: skip
+        return [
+            line
+            for key in sorted(set(old) | set(new), key=str)
+            for line in settings_diff(
+                old.get(key, "(absent)"), new.get(key, "(absent)"), f"{where}.{key}" if where else str(key)
+            )
+        ]
     if isinstance(old, list) and isinstance(new, list) and len(old) == len(new):
         return [line for i, (a, b) in enumerate(zip(old, new)) for line in settings_diff(a, b, f"{where}[{i}]")]
     return [] if old == new else [f"{where}: {old!r} -> {new!r}"]
@@ -681,14 +722,20 @@ class Experiment:
                 with open(latest, "rb") as file:
                     name = file.read().decode("utf-8").strip()
             except (OSError, UnicodeDecodeError) as exc:
-                raise ExperimentError(f"{latest} is damaged ({type(exc).__name__}): it should hold a name like step_20000") from None
+                raise ExperimentError(
+                    f"{latest} is damaged ({type(exc).__name__}): it should hold a name like step_20000"
+                ) from None
             if not (name.startswith("step_") and name[5:].isdigit()):
                 raise ExperimentError(f"{latest} is damaged: it holds {name[:40]!r}, not a name like step_20000")
             if not self._complete(os.path.join(root, name)):
                 raise ExperimentError(f"{latest} names {name}, but {os.path.join(root, name)} is missing or incomplete")
             return name
         try:
-            names = [e for e in os.listdir(root) if e.startswith("step_") and e[5:].isdigit() and self._complete(os.path.join(root, e))]
+            names = [
+                e
+                for e in os.listdir(root)
+                if e.startswith("step_") and e[5:].isdigit() and self._complete(os.path.join(root, e))
+            ]
         except (FileNotFoundError, NotADirectoryError):
             return None
         return max(names, key=lambda e: int(e[5:])) if names else None
@@ -699,7 +746,12 @@ class Experiment:
 
     def _remove_leftovers(self) -> None:
         """Temporary files a killed process left in the experiment's folders (see :func:`remove_leftovers`)."""
-        for folder in {self.folder, self.checkpoint_root, os.path.join(self.folder, MODELS_DIR), *(r.folder for r in self.config.runs)}:
+        for folder in {
+            self.folder,
+            self.checkpoint_root,
+            os.path.join(self.folder, MODELS_DIR),
+            *(r.folder for r in self.config.runs),
+        }:
             remove_leftovers(folder)
 
     # --- building --------------------------------------------------------------------------------------------------
@@ -730,7 +782,9 @@ class Experiment:
             verbose=0 if self.log_interval is None else 1,
             **kwargs,
         )
-        return model, self._eval_callback(make_eval_vec_env(cfg.env_id, cfg.eval_episodes, [r.seed for r in runs], cfg.env_kwargs))
+        return model, self._eval_callback(
+            make_eval_vec_env(cfg.env_id, cfg.eval_episodes, [r.seed for r in runs], cfg.env_kwargs)
+        )
 
     def _build_checked(self) -> tuple[MADDPG, MultiAgentEvalCallback]:
         """:meth:`_build`, with a setting that MADDPG, the env or the callback refuses reported in one line."""
@@ -744,7 +798,9 @@ class Experiment:
 
     def _eval_callback(self, eval_env: Any) -> MultiAgentEvalCallback:
         # early-stopping rules from the YAML's callback: list run after each evaluation; other callbacks every step
-        self.user_callbacks = make_callbacks(self.config.runs[0].hyperparams, self.config.unsafe_eval, self.config.runs[0].folder)
+        self.user_callbacks = make_callbacks(
+            self.config.runs[0].hyperparams, self.config.unsafe_eval, self.config.runs[0].folder
+        )
         stoppers = [c for c in self.user_callbacks if isinstance(c, _SuccessRateStop)]
         self.user_callbacks = [c for c in self.user_callbacks if c not in stoppers]
         after_eval = None if not stoppers else stoppers[0] if len(stoppers) == 1 else CallbackList(stoppers)
@@ -808,7 +864,9 @@ class Experiment:
         )
         if model.num_timesteps < total:
             if not self.user_callbacks and callback.callback is None:
-                raise RuntimeError(f"Training stopped at {model.num_timesteps // self.n_runs} of {self.config.n_timesteps} steps")
+                raise RuntimeError(
+                    f"Training stopped at {model.num_timesteps // self.n_runs} of {self.config.n_timesteps} steps"
+                )
             self.stopped_early = True  # a callback ended training (e.g. the success rate reached its threshold)
             if self.verbose:
                 print(f"{self.folder}: stopped by a callback at {model.num_timesteps // self.n_runs} steps")
@@ -877,7 +935,7 @@ class Experiment:
         delete the older one: a process killed at any moment leaves the previous checkpoint usable.
         """
         assert self.model is not None and self.eval_callback is not None
-        model, callback = self.model, self.eval_callback
+        model = self.model
         steps = model.num_timesteps // self.n_runs
         name = f"step_{steps}"
         root = self.checkpoint_root
@@ -917,7 +975,10 @@ class Experiment:
         if self.keep_models:
             models = os.path.join(self.folder, MODELS_DIR)
             os.makedirs(models, exist_ok=True)
-            with open(os.path.join(final, "model.zip"), "rb") as source, atomic_write(os.path.join(models, f"{name}.zip")) as file:
+            with (
+                open(os.path.join(final, "model.zip"), "rb") as source,
+                atomic_write(os.path.join(models, f"{name}.zip")) as file,
+            ):
                 shutil.copyfileobj(source, file)
         with atomic_write(os.path.join(root, "LATEST")) as file:
             file.write(name.encode())
@@ -1096,7 +1157,11 @@ def read_experiment_file(path: str) -> dict[str, Any]:
     :param path: The file.
     """
     saved = _read_json(path)
-    if not isinstance(saved, dict) or not isinstance(saved.get("config"), dict) or not isinstance(saved["config"].get("runs"), list):
+    if (
+        not isinstance(saved, dict)
+        or not isinstance(saved.get("config"), dict)
+        or not isinstance(saved["config"].get("runs"), list)
+    ):
         raise ExperimentError(f"{path} is not an experiment file (no 'config' with 'runs')")
     if saved.get("sb3_macb") != sb3_macb.__version__:
         raise ExperimentError(

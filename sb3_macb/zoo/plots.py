@@ -92,7 +92,7 @@ def plot_curves(
 ) -> str:
     """
     Success rate (any-step and, where recorded, final-step) and mean evaluation return against training episodes,
-    one line per run group; with ``reference`` (the JSON of ``experiments/macb_paper/scripts/reference_levels.py``) the scripted
+    one line per run group; with ``reference`` (the JSON of the study's ``scripts/reference_levels.py``) the scripted
     listeners' levels as horizontal lines. With ``complete_only``, runs still in progress are left out (otherwise
     a group's curve ends where its shortest run does, with a warning).
 
@@ -121,7 +121,11 @@ def plot_curves(
             levels = json.load(file)
         styles = {"random_landmark": ":", "landmark_tour": "--", "oracle": "-."}
         for ax, (key, _) in zip(axes, panels):
-            field = {evaluations.SUCCESSES: "any_step", evaluations.FINAL_SUCCESSES: "final_step", evaluations.RESULTS: "mean_return"}[key]
+            field = {
+                evaluations.SUCCESSES: "any_step",
+                evaluations.FINAL_SUCCESSES: "final_step",
+                evaluations.RESULTS: "mean_return",
+            }[key]
             for name, level in levels.items():
                 ax.axhline(level[field], color="gray", linestyle=styles.get(name, "-"), linewidth=1,
                            label=f"{name.replace('_', ' ')} (scripted)")  # fmt: skip
@@ -150,7 +154,9 @@ def plot_collisions(groups: list[str], output: str, confidence: float = 0.75) ->
     for folder in groups:
         runs = [r for r in load_group(folder) if evaluations.TRAINING_COLLISIONS in r]
         if not runs:
-            raise ValueError(f"{folder}: the evaluation files have no training_collisions (MultiAgentEvalCallback writes them)")
+            raise ValueError(
+                f"{folder}: the evaluation files have no training_collisions (MultiAgentEvalCallback writes them)"
+            )
         mean, band = mean_and_band([r[evaluations.TRAINING_COLLISIONS].astype(float) for r in runs], confidence)
         xs = _x_axis(runs[0])[: len(mean)]
         ax.plot(xs, mean, label=_label(folder, len(runs)))
@@ -163,7 +169,9 @@ def plot_collisions(groups: list[str], output: str, confidence: float = 0.75) ->
     plt.close(fig)
 
 
-def sweep_table(results_csv: str, row: str = "exploration.k", column: str = "exploration.beta") -> tuple[list, list, np.ndarray, np.ndarray, np.ndarray]:
+def sweep_table(
+    results_csv: str, row: str = "exploration.k", column: str = "exploration.beta"
+) -> tuple[list, list, np.ndarray, np.ndarray, np.ndarray]:
     """Mean success rate and count-1 fraction over seeds for each (row, column) cell of a sweep."""
     with open(results_csv) as file:
         records = list(csv.DictReader(file))
@@ -193,7 +201,7 @@ def plot_table(
     """The paper's Table 1 (success rate, count-1 %) as ``OUTPUT.md`` and a heatmap ``OUTPUT.png``."""
     rows, cols, success, count1, seeds = sweep_table(results_csv, row, column)
     heading = title
-    fmt = lambda v: "%g" % v  # noqa: E731
+    fmt = lambda v: f"{v:g}"  # noqa: E731
     lines = [f"| {row} \\ {column} | " + " | ".join(fmt(c) for c in cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for i, rv in enumerate(rows):
         cells = [
@@ -207,7 +215,10 @@ def plot_table(
 
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    for ax, values, title, cmap in ((axes[0], success, "success rate", "viridis"), (axes[1], 100 * count1, "count-1 %", "magma")):
+    for ax, values, title, cmap in (
+        (axes[0], success, "success rate", "viridis"),
+        (axes[1], 100 * count1, "count-1 %", "magma"),
+    ):
         image = ax.imshow(values, cmap=cmap, aspect="auto", origin="lower")
         ax.set_xticks(range(len(cols)), [fmt(c) for c in cols])
         ax.set_yticks(range(len(rows)), [fmt(r) for r in rows])
@@ -251,14 +262,18 @@ def plot_simhash(output: str, ks: tuple[int, ...] = (8, 16, 32), n_points: int =
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="sb3-macb plot", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="sb3-macb plot", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="what", required=True)
     curves = sub.add_parser("curves", help="success rate and return against episodes")
     curves.add_argument("groups", nargs="+")
     curves.add_argument("--smooth", type=int, default=50, help="moving average window, in evaluations")
     curves.add_argument("--confidence", type=float, default=0.75)
     curves.add_argument("-o", "--output", default="curves.png")
-    curves.add_argument("--reference", default=None, help="scripted listeners' levels (experiments/macb_paper/scripts/reference_levels.py)")
+    curves.add_argument(
+        "--reference", default=None, help="scripted listeners' levels (experiments/macb_paper/scripts/reference_levels.py)"
+    )
     curves.add_argument("--complete-only", action="store_true", help="leave out runs still in progress (no "
                         "'complete' in their run.json)")  # fmt: skip
     collisions = sub.add_parser("collisions", help="accumulated training collisions")

@@ -41,8 +41,9 @@ import os
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from copy import deepcopy
-from typing import Any, Callable, TypeVar
+from typing import Any, TypeVar
 
 import optuna
 import yaml
@@ -147,7 +148,11 @@ def _redacted(url: str) -> str:
 
 
 def make_storage(
-    url: str, heartbeat_interval: int, attempts: int = 10, connect_timeout: int = 10, deadline: float = 45.0,
+    url: str,
+    heartbeat_interval: int,
+    attempts: int = 10,
+    connect_timeout: int = 10,
+    deadline: float = 45.0,
     timeout: float = 30.0,
 ) -> optuna.storages.RDBStorage:
     """
@@ -201,7 +206,9 @@ def make_storage(
         raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)}: {exc}{hint}") from None
     except Exception as exc:  # noqa: BLE001 (every way of failing to connect gets the same clear message)
         message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ConnectionError(f"Cannot use the sweep storage {_redacted(url)} (gave up after {deadline:.0f} s): {message}") from None
+        raise ConnectionError(
+            f"Cannot use the sweep storage {_redacted(url)} (gave up after {deadline:.0f} s): {message}"
+        ) from None
 
 
 class StorageTimeout(ConnectionError):
@@ -258,7 +265,7 @@ def _guard_storage(storage: optuna.storages.RDBStorage, name: str, timeout: floa
             timer.start()
             try:
                 return method(*args, **kwargs)
-            except Exception as exc:
+            except Exception:
                 if fired.is_set():
                     raise StorageTimeout(f"the sweep storage {name} did not answer within {timeout:.0f} s "
                                          f"({method.__name__}); is the server running?") from None  # fmt: skip
@@ -340,7 +347,9 @@ def repair_queue(study: optuna.Study, points: list[dict[str, Any]], max_attempts
     return queued
 
 
-def run_trial(config: dict[str, Any], params: dict[str, Any], run_folder: str, callbacks: list[Any] | None = None) -> tuple[float, float, str]:
+def run_trial(
+    config: dict[str, Any], params: dict[str, Any], run_folder: str, callbacks: list[Any] | None = None
+) -> tuple[float, float, str]:
     """
     Train one grid point (:func:`~sb3_macb.zoo.experiment.run_experiment`); return (success rate, count-1, folder).
     ``callbacks`` run at every step (a worker's check of its storage).
@@ -438,8 +447,14 @@ class _Heartbeats:
                 for trial_id in trial_ids:
                     storage.record_heartbeat(trial_id)
             except Exception as exc:  # noqa: BLE001 (the storage is gone: stop the trial and say so)
-                self.error = exc if isinstance(exc, ConnectionError) else ConnectionError(
-                    f"the sweep storage failed while the trial ran: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+                self.error = (
+                    exc
+                    if isinstance(exc, ConnectionError)
+                    else ConnectionError(
+                        "the sweep storage failed while the trial ran: "
+                        f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                    )
+                )
                 return
             if self._stop.wait(interval):
                 return
@@ -559,7 +574,9 @@ def work(
             except ConnectionError:
                 raise
             except Exception as exc:  # noqa: BLE001
-                print(f"sb3-macb sweep: {'a pack' if pack else 'a trial'} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+                print(
+                    f"sb3-macb sweep: {'a pack' if pack else 'a trial'} failed: {type(exc).__name__}: {exc}", file=sys.stderr
+                )
         elif trials:
             time.sleep(poll)
         else:
@@ -568,7 +585,12 @@ def work(
 
 
 def _work_on_pack(
-    study: optuna.Study, storage: optuna.storages.RDBStorage, config: dict[str, Any], size: int, folder: str, heartbeat: int,
+    study: optuna.Study,
+    storage: optuna.storages.RDBStorage,
+    config: dict[str, Any],
+    size: int,
+    folder: str,
+    heartbeat: int,
     alone: bool = False,
 ) -> None:
     """
@@ -595,7 +617,9 @@ def _work_on_pack(
         with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat) as beats:
             if alone:
                 [(trial, params)] = claimed
-                results: list[Any] = [run_trial(config, params, os.path.join(folder, f"trial_{trial.number}"), [beats.watchdog()])]
+                results: list[Any] = [
+                    run_trial(config, params, os.path.join(folder, f"trial_{trial.number}"), [beats.watchdog()])
+                ]
             else:
                 results = run_pack(config, [(t.number, p) for t, p in claimed], folder, [beats.watchdog()])
     except ConnectionError:
@@ -634,7 +658,9 @@ def _finished_elsewhere(exc: Exception) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="sb3-macb sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="sb3-macb sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--config", required=True, help="sweep config (YAML)")
     parser.add_argument("--storage", default=None, help="Optuna storage URL (default: sqlite:///LOGDIR/sweeps.db)")
     parser.add_argument("--study-name", required=True)
@@ -642,8 +668,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--heartbeat", type=int, default=30, help="seconds between a worker's heartbeats")
     parser.add_argument("--max-attempts", type=int, default=3, help="tries of a failing point before it is reported")
     parser.add_argument("--num-threads", type=int, default=1, help="torch threads of this worker")
-    parser.add_argument("--storage-timeout", type=float, default=30.0,
-                        help="seconds a call to a network storage (PostgreSQL) may take before the worker reports it")  # fmt: skip
+    parser.add_argument(
+        "--storage-timeout",
+        type=float,
+        default=30.0,
+        help="seconds a call to a network storage (PostgreSQL) may take before the worker reports it",
+    )
     parser.add_argument("--pack", type=int, default=0, metavar="K",
                         help="claim up to K queued grid points at once and train them together in one process")  # fmt: skip
     args = parser.parse_args(argv)
@@ -656,8 +686,17 @@ def main(argv: list[str] | None = None) -> int:
     from sqlalchemy.exc import SQLAlchemyError
 
     try:
-        return work(args.config, storage, args.study_name, args.log_folder, heartbeat=args.heartbeat, pack=args.pack,
-                    max_attempts=args.max_attempts, num_threads=args.num_threads, storage_timeout=args.storage_timeout)  # fmt: skip
+        return work(
+            args.config,
+            storage,
+            args.study_name,
+            args.log_folder,
+            heartbeat=args.heartbeat,
+            pack=args.pack,
+            max_attempts=args.max_attempts,
+            num_threads=args.num_threads,
+            storage_timeout=args.storage_timeout,
+        )
     except (SQLAlchemyError, optuna.exceptions.StorageInternalError) as exc:  # the server went away mid-sweep
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ConnectionError(f"the sweep storage {_redacted(storage)} failed: {message}") from None

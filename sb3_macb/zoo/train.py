@@ -1,6 +1,6 @@
 """
 ``sb3-macb train``: one run of MADDPG with the zoo's YAML, as one explicit function (:func:`train`) on top of
-:mod:`sb3_macb.zoo.experiment` (the same code ``sb3-macb sweep`` and ``experiments/macb_paper/scripts/reproduce.py`` run), evaluated as the
+:mod:`sb3_macb.zoo.experiment` (the same code ``sb3-macb sweep`` and the paper study's ``reproduce.py`` run), evaluated as the
 paper does (:class:`~sb3_macb.callbacks.MultiAgentEvalCallback`), with checkpoints and resume on request.
 
 It takes rl_zoo3's train options that apply to these runs (same names and spellings: ``-c``/``--conf``/``-conf``/
@@ -105,7 +105,12 @@ def make_parser() -> argparse.ArgumentParser:
     add("-params", "--hyperparams", nargs="+", default=[], metavar="KEY:VALUE",
         help="hyperparameter overrides (dotted keys for nested dicts: exploration.beta:0.4)")  # fmt: skip
     add("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="keyword arguments for the env")
-    add("--eval-freq", type=int, default=20, help="evaluate every this many steps (0 or negative: never, as rl_zoo3); the paper: 20")
+    add(
+        "--eval-freq",
+        type=int,
+        default=20,
+        help="evaluate every this many steps (0 or negative: never, as rl_zoo3); the paper: 20",
+    )
     add("--eval-episodes", type=int, default=10, help="episodes per evaluation; the paper: 10")
     add("--num-threads", type=int, default=1, help="torch threads")
     add("--device", default="auto", help="torch device (auto, cpu, cuda)")
@@ -191,12 +196,13 @@ def _check_writable(folder: str, option: str) -> None:
         with tempfile.TemporaryFile(dir=existing):  # (a file that leaves nothing behind)
             pass
     except OSError as exc:
-        raise ExperimentError(f"{option} {folder} is not a folder this user can write to ({existing}: {exc.strerror})") from None
+        raise ExperimentError(
+            f"{option} {folder} is not a folder this user can write to ({existing}: {exc.strerror})"
+        ) from None
 
 
 def _check_env_id(env_id: str) -> None:
     import gymnasium as gym
-
 
     if env_id not in gym.registry:
         close = difflib.get_close_matches(env_id, list(gym.registry), n=1)
@@ -313,7 +319,9 @@ def _optimize(args: argparse.Namespace, hyperparams: dict[str, Any], env_kwargs:
         # rl_zoo3 evals normalize/monitor_kwargs strings and imports and calls env wrappers: refused, as in plain runs
         used = unsupported_keys(resolved)
         if used:
-            raise ExperimentError(f"{used}: rl_zoo3 would evaluate or import these for --optimize; remove them ({UNSAFE_HINT})")
+            raise ExperimentError(
+                f"{used}: rl_zoo3 would evaluate or import these for --optimize; remove them ({UNSAFE_HINT})"
+            )
         writers = [name for name, _ in callback_entries(resolved.get("callback")) if SAFE_CALLBACKS.get(name)]
         if writers:
             raise ExperimentError(f"'callback' {writers}: callbacks that write files are not passed to rl_zoo3's search "
