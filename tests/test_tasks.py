@@ -173,3 +173,29 @@ def test_actions_are_clipped_and_required():
     np.testing.assert_allclose(listener.state.p_pos - start, [0.05, 0.0], atol=1e-9)
     with pytest.raises(KeyError, match="listener_0"):
         env.step({"speaker_0": np.zeros(3)})
+
+
+def test_both_task_implementations_read_one_set_of_constants():
+    """The mpe2-based worlds and the vectorized env take their physics and geometry from task_constants."""
+    from mpe2._mpe_utils.core import World
+
+    from sb3_macb.envs import task_constants as c
+    from sb3_macb.envs.vec_tasks import TaskVecEnv
+
+    default = World()  # the physics the filed runs had: mpe2's defaults, now set explicitly from the constants
+    assert (default.dt, default.damping, default.contact_force, default.contact_margin) == (
+        c.DT, c.DAMPING, c.CONTACT_FORCE, c.CONTACT_MARGIN)  # fmt: skip
+    for module, task, constants in [(two_agent_navigation_v0, "navigation", c.NAVIGATION),
+                                    (communicative_navigation_v0, "communication", c.COMMUNICATION)]:  # fmt: skip
+        world = module.parallel_env().task_env.world
+        assert (world.dt, world.damping, world.contact_force, world.contact_margin) == (
+            c.DT, c.DAMPING, c.CONTACT_FORCE, c.CONTACT_MARGIN)  # fmt: skip
+        assert {e.size for e in world.entities} == {constants.size} and len(world.landmarks) == constants.n_landmarks
+        venv = TaskVecEnv(task)
+        assert (venv.size, venv.n_landmarks, venv.reward_radius, venv.success_radius) == (
+            constants.size, constants.n_landmarks, constants.reward_radius, constants.success_radius)  # fmt: skip
+    env = communicative_navigation_v0.parallel_env()
+    env.reset(seed=0)
+    landmarks = env.task_env.world.landmarks
+    assert np.array_equal([landmark.color for landmark in landmarks], c.GOAL_COLORS)
+    assert not any(np.shares_memory(landmark.color, c.GOAL_COLORS) for landmark in landmarks)  # rendering may edit them

@@ -11,16 +11,17 @@ listener (``listener_0``, observation 11: velocity, the three landmarks relative
 
 from typing import Any
 
+from sb3_macb.envs.task_constants import COMMUNICATION, MAX_CYCLES
 from sb3_macb.envs.tasks import CommunicativeNavigationScenario, TaskParallelEnv, to_aec
 
 NAME = "communicative_navigation_v0"
 
 
 def parallel_env(
-    max_cycles: int = 20,
+    max_cycles: int = MAX_CYCLES,
     reward: str = "sparse",
-    reward_radius: float = 0.15,
-    success_radius: float = 0.15,
+    reward_radius: float = COMMUNICATION.reward_radius,
+    success_radius: float = COMMUNICATION.success_radius,
     terminate_on_success: bool = False,
     render_mode: str | None = None,
 ) -> TaskParallelEnv:

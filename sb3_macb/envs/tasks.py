@@ -20,7 +20,17 @@ from mpe2._mpe_utils.scenario import BaseScenario
 from mpe2._mpe_utils.simple_env import SimpleEnv
 from pettingzoo import ParallelEnv
 
-FORCE_SCALE = 5.0  # MPE's default sensitivity: force = 5 * u
+from sb3_macb.envs.task_constants import (
+    COMMUNICATION,
+    CONTACT_FORCE,
+    CONTACT_MARGIN,
+    DAMPING,
+    DT,
+    FORCE_SCALE,
+    GOAL_COLORS,
+    MAX_CYCLES,
+    NAVIGATION,
+)
 
 
 class TaskScenario(BaseScenario):
@@ -44,6 +54,16 @@ class TaskScenario(BaseScenario):
 
     def is_terminal(self, world: World) -> bool:
         return self.terminate_on_success and self.success(world)
+
+    @staticmethod
+    def _new_world(dim_c: int) -> World:
+        """An empty collaborative world with the tasks' physics (:mod:`sb3_macb.envs.task_constants`)."""
+        world = World()
+        world.dim_c = dim_c
+        world.collaborative = True
+        world.dt, world.damping = DT, DAMPING
+        world.contact_force, world.contact_margin = CONTACT_FORCE, CONTACT_MARGIN
+        return world
 
     @staticmethod
     def _add_landmarks(world: World, n: int, size: float) -> None:
@@ -82,13 +102,13 @@ class TwoAgentNavigationScenario(TaskScenario):
     """
 
     n_agents = 2
-    n_landmarks = 2
-    size = 0.125
+    n_landmarks = NAVIGATION.n_landmarks
+    size = NAVIGATION.size
 
     def __init__(
         self,
-        reward_radius: float = 0.125,
-        success_radius: float = 0.25,
+        reward_radius: float = NAVIGATION.reward_radius,
+        success_radius: float = NAVIGATION.success_radius,
         collision_penalty: bool = True,
         terminate_on_success: bool = False,
     ):
@@ -98,9 +118,7 @@ class TwoAgentNavigationScenario(TaskScenario):
         self.collision_penalty = collision_penalty
 
     def make_world(self) -> World:
-        world = World()
-        world.dim_c = 2
-        world.collaborative = True
+        world = self._new_world(dim_c=2)
         world.agents = [Agent() for _ in range(self.n_agents)]
         for i, agent in enumerate(world.agents):
             agent.name = f"agent_{i}"
@@ -151,14 +169,14 @@ class CommunicativeNavigationScenario(TaskScenario):
     minus the squared distance to the goal. Success: the listener within ``success_radius`` of the goal.
     """
 
-    size = 0.075
-    colors = (np.array([0.65, 0.15, 0.15]), np.array([0.15, 0.65, 0.15]), np.array([0.15, 0.15, 0.65]))
+    size = COMMUNICATION.size
+    colors = tuple(GOAL_COLORS)
 
     def __init__(
         self,
         reward: str = "sparse",
-        reward_radius: float = 0.15,
-        success_radius: float = 0.15,
+        reward_radius: float = COMMUNICATION.reward_radius,
+        success_radius: float = COMMUNICATION.success_radius,
         terminate_on_success: bool = False,
     ):
         super().__init__(terminate_on_success)
@@ -170,9 +188,7 @@ class CommunicativeNavigationScenario(TaskScenario):
         self.goal: Landmark | None = None
 
     def make_world(self) -> World:
-        world = World()
-        world.dim_c = 3
-        world.collaborative = True
+        world = self._new_world(dim_c=3)
         world.agents = [Agent(), Agent()]
         speaker, listener = world.agents
         speaker.name, listener.name = "speaker_0", "listener_0"
@@ -181,13 +197,13 @@ class CommunicativeNavigationScenario(TaskScenario):
         for agent in world.agents:
             agent.collide = False
             agent.size = self.size
-        self._add_landmarks(world, 3, self.size)
+        self._add_landmarks(world, COMMUNICATION.n_landmarks, self.size)
         return world
 
     def reset_world(self, world: World, np_random: Any) -> None:
         self.goal = world.landmarks[int(np_random.integers(len(world.landmarks)))]
         for landmark, color in zip(world.landmarks, self.colors):
-            landmark.color = color
+            landmark.color = color.copy()
         for agent in world.agents:
             agent.color = np.array([0.25, 0.25, 0.25])
         world.agents[1].color = self.goal.color + 0.45
@@ -225,7 +241,7 @@ class TaskEnv(SimpleEnv, EzPickle):
     :param name: The environment's name in ``metadata``.
     """
 
-    def __init__(self, scenario: TaskScenario, max_cycles: int = 20, render_mode: str | None = None, name: str = ""):
+    def __init__(self, scenario: TaskScenario, max_cycles: int = MAX_CYCLES, render_mode: str | None = None, name: str = ""):
         EzPickle.__init__(self, scenario=scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
         if max_cycles < 1:
             raise ValueError(f"max_cycles must be >= 1, got {max_cycles}")
@@ -294,7 +310,7 @@ class TaskParallelEnv(ParallelEnv):
     :param name: The environment's name in ``metadata``.
     """
 
-    def __init__(self, scenario: TaskScenario, max_cycles: int = 20, render_mode: str | None = None, name: str = ""):
+    def __init__(self, scenario: TaskScenario, max_cycles: int = MAX_CYCLES, render_mode: str | None = None, name: str = ""):
         self.task_env = TaskEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=name)
         self.metadata = dict(self.task_env.metadata)
         self.render_mode = render_mode

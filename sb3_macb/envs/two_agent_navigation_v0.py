@@ -10,15 +10,16 @@ position, both landmarks and the other agent relative to it. Action: a 2-D force
 
 from typing import Any
 
+from sb3_macb.envs.task_constants import MAX_CYCLES, NAVIGATION
 from sb3_macb.envs.tasks import TaskParallelEnv, TwoAgentNavigationScenario, to_aec
 
 NAME = "two_agent_navigation_v0"
 
 
 def parallel_env(
-    max_cycles: int = 20,
-    reward_radius: float = 0.125,
-    success_radius: float = 0.25,
+    max_cycles: int = MAX_CYCLES,
+    reward_radius: float = NAVIGATION.reward_radius,
+    success_radius: float = NAVIGATION.success_radius,
     collision_penalty: bool = True,
     terminate_on_success: bool = False,
     render_mode: str | None = None,

@@ -23,12 +23,17 @@ from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_macb.envs.joint_env import AgentLayout
-
-FORCE_SCALE = 5.0
-DT = 0.1
-DAMPING = 0.25
-CONTACT_FORCE = 1e2
-CONTACT_MARGIN = 1e-3
+from sb3_macb.envs.task_constants import (
+    COMMUNICATION,
+    CONTACT_FORCE,
+    CONTACT_MARGIN,
+    DAMPING,
+    DT,
+    FORCE_SCALE,
+    GOAL_COLORS,
+    MAX_CYCLES,
+    NAVIGATION,
+)
 
 TASK_IDS = ("sb3_macb/TwoAgentNavigation-v0", "sb3_macb/CommunicativeNavigation-v0")
 
@@ -51,7 +56,7 @@ class TaskVecEnv(VecEnv):
         self,
         task: str,
         n_envs: int = 1,
-        max_cycles: int = 20,
+        max_cycles: int = MAX_CYCLES,
         reward: str = "sparse",
         reward_radius: float | None = None,
         success_radius: float | None = None,
@@ -70,16 +75,17 @@ class TaskVecEnv(VecEnv):
         self.collision_penalty = collision_penalty
         self.terminate_on_success = terminate_on_success
         nav = task == "navigation"
-        self.reward_radius = (0.125 if nav else 0.15) if reward_radius is None else float(reward_radius)
-        self.success_radius = (0.25 if nav else 0.15) if success_radius is None else float(success_radius)
-        self.size = 0.125 if nav else 0.075
+        constants = NAVIGATION if nav else COMMUNICATION
+        self.reward_radius = constants.reward_radius if reward_radius is None else float(reward_radius)
+        self.success_radius = constants.success_radius if success_radius is None else float(success_radius)
+        self.size = constants.size
         if nav:
             self.agent_layout = AgentLayout(("agent_0", "agent_1"), (10, 10), (2, 2))
-            self.n_landmarks, self.n_movers = 2, 2
+            self.n_landmarks, self.n_movers = NAVIGATION.n_landmarks, 2
             low, high = -np.ones(4, dtype=np.float32), np.ones(4, dtype=np.float32)
         else:
             self.agent_layout = AgentLayout(("speaker_0", "listener_0"), (3, 11), (3, 2))
-            self.n_landmarks, self.n_movers = 3, 1
+            self.n_landmarks, self.n_movers = COMMUNICATION.n_landmarks, 1
             low = np.array([0, 0, 0, -1, -1], dtype=np.float32)
             high = np.ones(5, dtype=np.float32)
         obs_space = spaces.Box(-np.inf, np.inf, (self.agent_layout.obs_dim,), dtype=np.float32)
@@ -100,7 +106,7 @@ class TaskVecEnv(VecEnv):
 
     # --- episodes ------------------------------------------------------------------------------------------------
 
-    _colors = np.array([[0.65, 0.15, 0.15], [0.15, 0.65, 0.15], [0.15, 0.15, 0.65]])
+    _colors = GOAL_COLORS
 
     def _reset_env(self, i: int) -> None:
         rng = self.rngs[i]
