@@ -13,8 +13,9 @@ import torch as th
 from toy_envs import Rendezvous
 from torch import nn
 
-from sb3_macb import MADDPG
+from sb3_macb import MACB, MADDPG, MATD3
 from sb3_macb.common.grouped_mlp import GroupedMLP, onednn_available
+from sb3_macb.maddpg.maddpg import DISCRETE_LOGIT_PENALTY
 
 
 def _mlp(weights: list[th.Tensor], biases: list[th.Tensor]) -> nn.Sequential:
@@ -31,30 +32,40 @@ def _mlp(weights: list[th.Tensor], biases: list[th.Tensor]) -> nn.Sequential:
 
 class ReferenceMADDPG:
     """
-    The MADDPG update of Lowe et al. (2017) for continuous agents, one network object per agent: critic ``i`` regresses
+    The MADDPG update of Lowe et al. (2017), one network object per agent: critic ``i`` regresses
     ``r_i + gamma * (1 - done) * Q'_i(s', mu'(s'))``; actor ``i`` maximizes ``Q_i(s, a)`` with ``a_i = mu_i(o_i)`` and the
     other agents' buffer actions; then the targets move by ``tau``. With ``n_critics=2`` and ``policy_delay``, the
-    critics' minimum forms the target and the actors and targets update every ``policy_delay`` steps (MATD3 without
-    target noise).
+    critics' minimum forms the target and the actors and targets update every ``policy_delay`` steps, and target
+    policy noise (clipped) smooths the continuous target actions (MATD3). A discrete agent acts with the one-hot of
+    its logits' argmax (as 2 * one_hot - 1) and trains with a Gumbel-max sample carrying the straight-through
+    Gumbel-softmax gradient; its logits are kept small by ``DISCRETE_LOGIT_PENALTY`` times their mean square.
+
+    :param model: The model whose current parameters the reference copies.
+    :param run: The run of a pack to copy (its parameter groups).
     """
 
-    def __init__(self, model: MADDPG):
+    def __init__(self, model: MADDPG, run: int = 0):
         layout = model.agent_layout
         self.obs_slices, self.act_slices = layout.obs_slices, layout.action_slices
+        self.discrete = list(layout.discrete_agents)
         self.n_agents = layout.n_agents
         self.gamma, self.tau, self.delay = model.gamma, model.tau, model.policy_delay
+        self.noise, self.noise_clip = model.target_policy_noise, model.target_noise_clip
+        self.temperature = model.actor.gumbel_temperature
         self.n_critics = model.policy.n_critics
+        n_runs = model.n_runs
         self.updates = 0
 
         def actor(net: GroupedMLP, i: int) -> nn.Sequential:
-            ws = [w.detach()[i] for w in net.weights]
-            bs = [b.detach()[i] for b in net.biases]
+            g = run * self.n_agents + i
+            ws = [w.detach()[g] for w in net.weights]
+            bs = [b.detach()[g] for b in net.biases]
             ws[0] = ws[0][:, self.obs_slices[i]]
             ws[-1], bs[-1] = ws[-1][self.act_slices[i]], bs[-1][self.act_slices[i]]
             return _mlp(ws, bs)
 
         def critic(net: GroupedMLP, c: int, i: int) -> nn.Sequential:
-            g = c * self.n_agents + i
+            g = (c * n_runs + run) * self.n_agents + i
             return _mlp([w.detach()[g] for w in net.weights], [b.detach()[g] for b in net.biases])
 
         self.actors = [actor(model.actor.mu, i) for i in range(self.n_agents)]
@@ -65,14 +76,36 @@ class ReferenceMADDPG:
         self.actor_opt = th.optim.Adam([p for a in self.actors for p in a.parameters()], lr=lr, foreach=False)
         self.critic_opt = th.optim.Adam([p for cs in self.critics for c in cs for p in c.parameters()], lr=lr, foreach=False)
 
-    def _act(self, actors: list[nn.Sequential], obs: th.Tensor) -> list[th.Tensor]:
-        return [th.tanh(a(obs[:, sl])) for a, sl in zip(actors, self.obs_slices)]
+    def _act(self, actors: list[nn.Sequential], obs: th.Tensor, gumbel: th.Tensor | None = None) -> tuple[list, list]:
+        """Each agent's action and its raw outputs; discrete agents sample with ``gumbel`` (None: their argmax)."""
+        actions, raws = [], []
+        for i, (net, sl) in enumerate(zip(actors, self.obs_slices)):
+            raw = net(obs[:, sl])
+            if not self.discrete[i]:
+                actions.append(th.tanh(raw))
+            else:
+                logits = raw if gumbel is None else raw + gumbel[:, self.act_slices[i]]
+                hard = nn.functional.one_hot(logits.argmax(dim=1), logits.shape[1]).to(raw.dtype)
+                if gumbel is not None:
+                    soft = th.softmax(logits / self.temperature, dim=1)
+                    hard = hard - soft.detach() + soft
+                actions.append(2.0 * hard - 1.0)
+            raws.append(raw)
+        return actions, raws
 
-    def update(self, obs: th.Tensor, actions: th.Tensor, next_obs: th.Tensor, dones: th.Tensor, rewards: th.Tensor) -> None:
-        """One gradient step on one minibatch: obs (batch, obs_dim), rewards (batch, n_agents), dones (batch,)."""
+    def update(self, obs, actions, next_obs, dones, rewards, noise=None, gumbel=None) -> None:  # type: ignore[no-untyped-def]
+        """
+        One gradient step on one minibatch: obs (batch, obs_dim), rewards (batch, n_agents), dones (batch,); ``noise``
+        the target policy noise (batch, action_dim) before clipping, ``gumbel`` the discrete agents' Gumbel(0, 1) draws.
+        """
         self.updates += 1
         with th.no_grad():
-            next_actions = th.cat(self._act(self.actor_targets, next_obs), dim=1)
+            next_actions = th.cat(self._act(self.actor_targets, next_obs)[0], dim=1)
+            if self.noise > 0:
+                for i, sl in enumerate(self.act_slices):
+                    if not self.discrete[i]:
+                        smoothed = next_actions[:, sl] + (self.noise * noise[:, sl]).clamp(-self.noise_clip, self.noise_clip)
+                        next_actions[:, sl] = smoothed.clamp(-1, 1)
             targets = []
             for i in range(self.n_agents):
                 next_q = th.stack([cs[i](th.cat([next_obs, next_actions], 1))[:, 0] for cs in self.critic_targets])
@@ -85,11 +118,14 @@ class ReferenceMADDPG:
         self.critic_opt.step()
         if self.updates % self.delay:
             return
-        own = self._act(self.actors, obs)
+        own, raws = self._act(self.actors, obs, gumbel if any(self.discrete) else None)
         actor_loss = 0.0
         for i in range(self.n_agents):
             parts = [own[j] if j == i else actions[:, sl] for j, sl in enumerate(self.act_slices)]
             actor_loss = actor_loss - self.critics[0][i](th.cat([obs, *parts], 1)).mean()
+        if any(self.discrete):
+            logits = th.cat([raw for raw, flag in zip(raws, self.discrete) if flag], dim=1)
+            actor_loss = actor_loss + DISCRETE_LOGIT_PENALTY * logits.pow(2).mean()
         self.actor_opt.zero_grad()
         actor_loss.backward()
         self.actor_opt.step()
@@ -100,9 +136,9 @@ class ReferenceMADDPG:
                 for p, tp in zip(net.parameters(), target.parameters()):
                     tp.lerp_(p, self.tau)
 
-    def assert_matches(self, model: MADDPG, atol: float) -> None:
-        """Every parameter of the model equal to the reference's to ``atol`` (masked weights stay zero)."""
-        mine = ReferenceMADDPG(model)  # the model's parameters in the reference's shapes
+    def assert_matches(self, model: MADDPG, atol: float, run: int = 0) -> None:
+        """Every parameter of the model's run ``run`` equal to the reference's to ``atol``."""
+        mine = ReferenceMADDPG(model, run)  # the model's parameters in the reference's shapes
         pairs = [(self.actors, mine.actors), (self.actor_targets, mine.actor_targets)]
         pairs += [(a, b) for a, b in zip(self.critics, mine.critics)]
         pairs += [(a, b) for a, b in zip(self.critic_targets, mine.critic_targets)]
@@ -113,6 +149,31 @@ class ReferenceMADDPG:
                     th.testing.assert_close(q, p.detach(), atol=atol, rtol=0)
                     compared += 1
         assert compared >= 6 * self.n_agents
+
+
+def _record_updates(model: MADDPG, updates: int, batch_size: int) -> list[dict]:
+    """Train ``updates`` steps and return, per update, the minibatch and random draws of every run (in order)."""
+    sample, draws = model.replay_buffer.sample_runs, model._per_run_draws
+    steps: list[dict] = []
+
+    def recording_sample(*args, **kwargs):  # type: ignore[no-untyped-def]
+        data = sample(*args, **kwargs)
+        steps.append({"batch": [t.clone() for t in data[:5]]})
+        return data
+
+    def recording_draws(distribution: str, shape: tuple[int, ...]) -> th.Tensor:
+        out = draws(distribution, shape)
+        steps[-1][distribution] = out.clone()
+        return out
+
+    model.replay_buffer.sample_runs = recording_sample
+    model._per_run_draws = recording_draws
+    try:
+        model.train(updates, batch_size=batch_size)
+    finally:
+        del model.replay_buffer.sample_runs, model._per_run_draws
+    assert len(steps) == updates
+    return steps
 
 
 @pytest.mark.parametrize(
@@ -155,3 +216,52 @@ def test_train_matches_an_independent_plain_pytorch_maddpg(net_arch, onednn, td3
     start = ReferenceMADDPG(MADDPG("MlpPolicy", Rendezvous(), seed=3, device="cpu", **extra))
     with pytest.raises(AssertionError):
         start.assert_matches(model, atol=1e-3)
+
+
+def _replay(model: MADDPG, steps: list[dict], run: int, reference: ReferenceMADDPG) -> None:
+    for step in steps:
+        obs, actions, next_obs, dones, rewards = (t[run] for t in step["batch"])
+        noise = step.get("standard_normal")
+        gumbel = step.get("gumbel")
+        reference.update(obs, actions, next_obs, dones, rewards,
+                         None if noise is None else noise[run], None if gumbel is None else gumbel[run])  # fmt: skip
+
+
+@pytest.mark.parametrize("config", ["pack", "macb", "matd3", "discrete", "discrete_pack"])
+def test_train_matches_the_reference_in_packs_with_macb_matd3_and_discrete_agents(config):
+    """
+    The same check for a pack of two runs (each run against its own reference), MACB's bonus in the rewards,
+    MATD3 (twin critics, delayed actor, clipped target noise) and a discrete agent beside a continuous one.
+    """
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from sb3_macb import make_joint_env
+
+    discrete = config.startswith("discrete")
+    runs = 2 if config.endswith("pack") else 1
+    kwargs = dict(batch_size=32, learning_starts=200 * runs, device="cpu", gamma=0.95, tau=0.01,
+                  policy_kwargs=dict(net_arch=[32, 32]))  # fmt: skip  (learning_starts counts the steps of all runs)
+    if runs > 1:
+        env = DummyVecEnv([lambda: make_joint_env(Rendezvous(discrete=discrete)) for _ in range(runs)])
+        kwargs.update(n_runs=runs, run_seeds=[3, 4])
+    else:
+        env = Rendezvous(discrete=discrete)
+        kwargs.update(seed=3)
+    if config == "macb":
+        kwargs.update(exploration=MACB(beta=0.8, k=8))
+    model = (MATD3 if config == "matd3" else MADDPG)("MlpPolicy", env, **kwargs)
+    model.learn(200 * runs)  # random warm-up transitions only
+    references = [ReferenceMADDPG(model, run) for run in range(runs)]
+    steps = _record_updates(model, 100, batch_size=32)
+    if config == "matd3":
+        assert model.target_policy_noise > 0 and all("standard_normal" in step for step in steps)
+    if discrete:
+        assert any(references[0].discrete) and sum("gumbel" in step for step in steps) == 100
+    for run, reference in enumerate(references):
+        _replay(model, steps, run, reference)
+        reference.assert_matches(model, atol=1e-6, run=run)
+    if config == "macb":  # the bonus is in the minibatch rewards (Rendezvous' own rewards are <= 0)
+        assert all(float(step["batch"][4].max()) > 0 for step in steps)
+    if runs > 1:  # the runs differ, so each reference checked its own run
+        with pytest.raises(AssertionError):
+            references[0].assert_matches(model, atol=1e-3, run=1)
