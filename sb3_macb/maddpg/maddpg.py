@@ -20,7 +20,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.td3 import TD3
 
-from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer
+from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer, RunSamples
 from sb3_macb.common.atomic import atomic_write, with_suffix
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
 from sb3_macb.exploration.estimators import make_exploration
@@ -584,73 +584,13 @@ class MADDPG(TD3):
             data = self.replay_buffer.sample_runs(
                 batch_size, self._run_rngs, env=self._vec_normalize_env, separate_bonus=critic_int is not None
             )
-            rewards = data.rewards.transpose(1, 2)  # (n_runs, n_agents, batch): each critic learns its own reward
-            not_done = 1.0 - data.dones.unsqueeze(1)  # (n_runs, 1, batch)
-
-            with th.no_grad():
-                next_actions = self.actor_target(data.next_observations)
-                if self.target_policy_noise > 0:
-                    # each run's noise from its own generator, so that a packed run is its solo run bit for bit
-                    noise = self._per_run_draws("standard_normal", next_actions.shape[1:]).mul_(self.target_policy_noise)
-                    if self.actor.has_discrete:
-                        noise = noise.masked_fill(self.actor.discrete_mask, 0.0)  # (discrete targets stay one-hot)
-                    next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
-                next_q = self.critic_target(data.next_observations, next_actions)  # (n_critics, n_runs, n_agents, batch)
-                next_q = next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0]
-                target_q = rewards + self.gamma * not_done * next_q
-                if critic_int is not None:  # the bonus's return: its own discount, never cut at an episode's end
-                    next_int = self.policy.critic_int_target(data.next_observations, next_actions)  # type: ignore[misc]
-                    next_int = next_int.min(dim=0).values if next_int.shape[0] > 1 else next_int[0]
-                    target_int = data.bonus.transpose(1, 2) + self.intrinsic_gamma * next_int  # type: ignore[union-attr]
-
-            current_q = self.critic(data.observations, data.actions)
-            # Sum over runs, agents (and critics) of each critic's MSE: the groups' gradients stay separate
-            critic_loss = (current_q - target_q).pow(2).mean(dim=-1).sum()
-            self.critic.optimizer.zero_grad(set_to_none=True)
-            critic_loss.backward()
-            self.critic.optimizer.step()
-            critic_losses.append(critic_loss.detach())
+            target_q, target_int = self._td_targets(data)
+            critic_losses.append(self._regress(self.critic, data, target_q))
             if critic_int is not None:
-                int_loss = (critic_int(data.observations, data.actions) - target_int).pow(2).mean(dim=-1).sum()
-                critic_int.optimizer.zero_grad(set_to_none=True)
-                int_loss.backward()
-                critic_int.optimizer.step()
-                int_losses.append(int_loss.detach())
-
+                int_losses.append(self._regress(critic_int, data, target_int))  # type: ignore[arg-type]
             if self._n_updates % self.policy_delay == 0:
-                # Agent i's critic sees the buffer actions with agent i's slice replaced by its actor's action
-                penalty = None
-                if self.actor.has_discrete:
-                    # discrete agents: a Gumbel-max sample with the straight-through Gumbel-softmax gradient, the
-                    # noise drawn by each run's own generator; their logits are kept small as in the MADDPG paper
-                    gumbel = self._per_run_draws("gumbel", (batch_size, self.agent_layout.action_dim))  # type: ignore[union-attr]
-                    raw = self.actor.raw(data.observations)
-                    pi = self.actor.squash(raw, gumbel, straight_through=True).unsqueeze(1)
-                    penalty = DISCRETE_LOGIT_PENALTY * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
-                    if self.preactivation_reg > 0:
-                        penalty = penalty + self._preactivation_penalty(raw)
-                elif self.preactivation_reg > 0:
-                    raw = self.actor.raw(data.observations)
-                    pi = self.actor.squash(raw).unsqueeze(1)
-                    penalty = self._preactivation_penalty(raw)
-                else:
-                    pi = self.actor(data.observations).unsqueeze(1)  # (n_runs, 1, batch, action_dim)
-                actions = data.actions.unsqueeze(1)
-                mixed = actions + self._action_masks * (pi - actions)  # (n_runs, n_agents, batch, action_dim)
-                q = self.critic.q1_forward(data.observations, mixed, detach_params=True)
-                if critic_int is not None:
-                    q = q + self.intrinsic_coef * critic_int.q1_forward(data.observations, mixed, detach_params=True)
-                actor_loss = -q.mean(dim=-1).sum()
-                if penalty is not None:
-                    actor_loss = actor_loss + penalty
-                self.actor.optimizer.zero_grad(set_to_none=True)
-                actor_loss.backward()
-                self.actor.optimizer.step()
-                actor_losses.append(actor_loss.detach())
-
-                with th.no_grad():
-                    th._foreach_lerp_(self._critic_target_params, self._critic_params, self.tau)
-                    th._foreach_lerp_(self._actor_target_params, self._actor_params, self.tau)
+                actor_losses.append(self._actor_step(data, batch_size))
+                self._update_targets()
 
         groups = self.agent_layout.n_agents * self.n_runs  # type: ignore[union-attr]
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
@@ -659,6 +599,83 @@ class MADDPG(TD3):
         self.logger.record("train/critic_loss", th.stack(critic_losses).mean().item() / groups)
         if int_losses:
             self.logger.record("train/intrinsic_critic_loss", th.stack(int_losses).mean().item() / groups)
+
+    def _td_targets(self, data: RunSamples) -> tuple[th.Tensor, th.Tensor | None]:
+        """
+        Each critic's target ``r_i + gamma * (1 - done) * Q'_i(s', mu'(s'))`` (the minimum over twin critics), of shape
+        (n_runs, n_agents, batch), and with an intrinsic critic its target ``bonus + intrinsic_gamma * Q'_int(s',
+        mu'(s'))`` (never cut at an episode's end), else None. With ``target_policy_noise``, the target actors'
+        continuous actions are smoothed by clipped Gaussian noise drawn from each run's own generator (a packed run
+        draws what its solo run draws); discrete target actions stay one-hot.
+        """
+        critic_int_target = self.policy.critic_int_target
+        with th.no_grad():
+            next_actions = self.actor_target(data.next_observations)
+            if self.target_policy_noise > 0:
+                noise = self._per_run_draws("standard_normal", next_actions.shape[1:]).mul_(self.target_policy_noise)
+                if self.actor.has_discrete:
+                    noise = noise.masked_fill(self.actor.discrete_mask, 0.0)
+                next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
+            next_q = self.critic_target(data.next_observations, next_actions)  # (n_critics, n_runs, n_agents, batch)
+            next_q = next_q.min(dim=0).values if next_q.shape[0] > 1 else next_q[0]
+            rewards = data.rewards.transpose(1, 2)  # (n_runs, n_agents, batch): each critic learns its own reward
+            not_done = 1.0 - data.dones.unsqueeze(1)  # (n_runs, 1, batch)
+            target_q = rewards + self.gamma * not_done * next_q
+            if critic_int_target is None:
+                return target_q, None
+            next_int = critic_int_target(data.next_observations, next_actions)
+            next_int = next_int.min(dim=0).values if next_int.shape[0] > 1 else next_int[0]
+            return target_q, data.bonus.transpose(1, 2) + self.intrinsic_gamma * next_int  # type: ignore[union-attr]
+
+    @staticmethod
+    def _regress(critic: MultiAgentCritic, data: RunSamples, target: th.Tensor) -> th.Tensor:
+        """
+        One gradient step of ``critic`` towards ``target`` on the minibatch's observations and actions: the sum over
+        runs, agents and twin critics of each critic's mean squared error (so the groups' gradients stay separate).
+        :return: The loss, detached.
+        """
+        loss = (critic(data.observations, data.actions) - target).pow(2).mean(dim=-1).sum()
+        critic.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        critic.optimizer.step()
+        return loss.detach()
+
+    def _actor_step(self, data: RunSamples, batch_size: int) -> th.Tensor:
+        """
+        One gradient step of the actors: agent ``i`` maximizes its first critic's ``Q_i(s, a)`` where ``a`` is the
+        minibatch's joint action with agent ``i``'s slice replaced by its actor's action (critic weights frozen; with
+        an intrinsic critic, ``Q_i + intrinsic_coef * Q_int,i``). Discrete agents act by a Gumbel-max sample with the
+        straight-through Gumbel-softmax gradient (noise from each run's own generator) and their logits are kept
+        small by ``DISCRETE_LOGIT_PENALTY`` times their mean square, as in the MADDPG paper; ``preactivation_reg``
+        penalizes continuous agents' pre-``tanh`` outputs.
+        :return: The loss, detached.
+        """
+        gumbel = None
+        if self.actor.has_discrete:
+            gumbel = self._per_run_draws("gumbel", (batch_size, self.agent_layout.action_dim))  # type: ignore[union-attr]
+        raw = self.actor.raw(data.observations)  # (n_runs, batch, action_dim), logits for discrete agents
+        pi = self.actor.squash(raw, gumbel, straight_through=gumbel is not None).unsqueeze(1)
+        actions = data.actions.unsqueeze(1)
+        mixed = actions + self._action_masks * (pi - actions)  # (n_runs, n_agents, batch, action_dim)
+        q = self.critic.q1_forward(data.observations, mixed, detach_params=True)
+        critic_int = self.policy.critic_int
+        if critic_int is not None:
+            q = q + self.intrinsic_coef * critic_int.q1_forward(data.observations, mixed, detach_params=True)
+        loss = -q.mean(dim=-1).sum()
+        if self.actor.has_discrete:
+            loss = loss + DISCRETE_LOGIT_PENALTY * raw[..., self.actor.discrete_mask].pow(2).mean(dim=(-2, -1)).sum()
+        if self.preactivation_reg > 0:
+            loss = loss + self._preactivation_penalty(raw)
+        self.actor.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.actor.optimizer.step()
+        return loss.detach()
+
+    def _update_targets(self) -> None:
+        """Polyak averaging of every target network (critics, intrinsic critics, actors) towards its network by ``tau``."""
+        with th.no_grad():
+            th._foreach_lerp_(self._critic_target_params, self._critic_params, self.tau)
+            th._foreach_lerp_(self._actor_target_params, self._actor_params, self.tau)
 
     def _preactivation_penalty(self, raw: th.Tensor) -> th.Tensor:
         """
