@@ -12,12 +12,31 @@ USAGE = """usage: sb3-macb {train,enjoy,sweep,plot} ...
 """
 
 
+# top-level modules of the packages that the ``zoo`` extra installs (pyproject.toml)
+ZOO_EXTRA_MODULES = frozenset(
+    {"rl_zoo3", "sb3_contrib", "optuna", "yaml", "matplotlib", "pandas", "tqdm", "rich", "sqlalchemy"}
+)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(USAGE)
         return 0 if argv else 2
-    command, rest = argv[0], argv[1:]
+    try:
+        return _run(argv[0], argv[1:])
+    except ModuleNotFoundError as exc:  # a command used without the extra it needs: say which to install
+        if (exc.name or "").split(".")[0] not in ZOO_EXTRA_MODULES:
+            raise
+        print(
+            f"sb3-macb {argv[0]}: error: this command needs the 'zoo' extra (no module named '{exc.name}'): "
+            "pip install 'sb3_macb[zoo]'",
+            file=sys.stderr,
+        )
+        return 2
+
+
+def _run(command: str, rest: list[str]) -> int:
     if command == "train":
         from sb3_macb.common.atomic import AtomicWriteError
         from sb3_macb.zoo.experiment import ExperimentError

@@ -6,6 +6,8 @@ import subprocess
 import sys
 import tomllib
 import zipfile
+
+import pytest
 from pathlib import Path
 
 ROOT = Path(__file__).parent.parent
@@ -45,3 +47,18 @@ def test_a_wheel_ships_the_zoo_yaml_and_the_cli_finds_its_defaults(tmp_path):
     done = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "'policy_kwargs'" in done.stdout and "'n_timesteps'" in done.stdout
+
+
+@pytest.mark.parametrize(
+    "args, module", [(["train", "--help"], "yaml"), (["sweep", "--help"], "optuna"), (["plot", "simhash"], "matplotlib")]
+)
+def test_a_command_without_its_extra_names_the_extra_to_install(args, module, tmp_path):
+    code = (
+        f"import sys; sys.modules[{module!r}] = None\n"  # as if the package were not installed
+        "from sb3_macb.cli import main\n"
+        f"sys.exit(main({args!r}))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert f"no module named '{module}'" in done.stderr and "pip install 'sb3_macb[zoo]'" in done.stderr
+    assert "Traceback" not in done.stderr and not list(tmp_path.iterdir())
