@@ -114,6 +114,11 @@ def gemm_floor_ms(net: list[int], repeats: int = 50) -> float:
 
     from sb3_macb.common.grouped_mlp import onednn_available
 
+    try:  # this checkout's fenced oneDNN GEMM (a baseline checkout may predate the fence)
+        from sb3_macb.common.fast_ops import ONEDNN_LINEAR
+    except ImportError:
+        ONEDNN_LINEAR = th.ops.mkldnn._linear_pointwise if onednn_available() else None
+
     th.set_num_threads(1)
     batch, agents = 100, [(3, 3), (11, 2)]
     critic_in = sum(o + a for o, a in agents)
@@ -138,7 +143,7 @@ def gemm_floor_ms(net: list[int], repeats: int = 50) -> float:
         shapes += forward(critic) + backward(critic, False, True)  # critic update
         shapes += forward(actor) + forward(critic)  # actor output through the critic
         shapes += backward(critic, True, False) + backward(actor, False, True)  # back through the frozen critic
-    linear = th.ops.mkldnn._linear_pointwise if onednn_available() else None
+    linear = ONEDNN_LINEAR
     total = 0.0
     for m, k, n in shapes:
         a, w = th.randn(m, k), th.randn(n, k)

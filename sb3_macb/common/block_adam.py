@@ -5,6 +5,8 @@ from typing import Any
 
 import torch as th
 
+from sb3_macb.common.fast_ops import fused_adam_
+
 
 class BlockAdam(th.optim.Adam):
     """
@@ -96,7 +98,7 @@ class BlockAdam(th.optim.Adam):
             if not params:
                 continue
             beta1, beta2 = group["betas"]
-            th._fused_adam_(
+            fused_adam_(
                 params,
                 grads,
                 exp_avgs,
@@ -110,7 +112,5 @@ class BlockAdam(th.optim.Adam):
                 weight_decay=group["weight_decay"],
                 eps=group["eps"],
                 maximize=group["maximize"],
-                grad_scale=None,
-                found_inf=None,
             )
         return loss

@@ -6,7 +6,7 @@ Two interchangeable execution paths compute the same function and gradients:
 
 - a portable path built from ``torch.baddbmm`` (any device, any activation, autograd does the backward);
 - on CPU, for float32 and ReLU, one autograd ``Function`` for all groups and layers with a hand-written backward,
-  calling one GEMM per group and layer: oneDNN's (``torch.ops.mkldnn._linear_pointwise``) for large layers on
+  calling one GEMM per group and layer: oneDNN's (:data:`~sb3_macb.common.fast_ops.ONEDNN_LINEAR`) for large layers on
   AVX-512 CPUs, where it runs these shapes about twice as fast as MKL, and ``torch.addmm``/``mm`` (MKL) elsewhere
   and for small layers, where a call's fixed cost dominates. Each group's products are the same calls alone or in a
   pack.
@@ -18,6 +18,8 @@ import numpy as np
 import torch as th
 from torch import nn
 
+from sb3_macb.common.fast_ops import ONEDNN_LINEAR, parameter_values
+
 PRECISIONS = {"fp32": None, "bf16": th.bfloat16}  # GroupedMLP's precision option: the dtype of the products
 
 # Products with at least this many weights per group and this many rows go through oneDNN's GEMM; smaller ones
@@ -26,20 +28,7 @@ ONEDNN_MIN_WEIGHTS = 8192
 ONEDNN_MIN_ROWS = 16
 
 
-def _onednn_linear_op() -> Any:
-    try:
-        if not th.backends.mkldnn.is_available():
-            return None
-        op = th.ops.mkldnn._linear_pointwise
-        x, w = th.ones(2, 3), th.ones(4, 3)
-        if not th.allclose(op(x, w, None, "none", [], ""), x @ w.t()):
-            return None
-        return op
-    except (AttributeError, RuntimeError):
-        return None
-
-
-_LINEAR = _onednn_linear_op()
+_LINEAR = ONEDNN_LINEAR  # (probed in fast_ops)
 
 
 def _onednn_bf16_works() -> bool:
@@ -367,7 +356,7 @@ class GroupedMLP(nn.Module):
         :return: (G', batch, out_dim), or (batch, out_dim) with ``sum_groups``.
         """
         # (the ParameterLists' own __getitem__/__iter__ cost more than the small layers' matmuls)
-        weights, biases = list(self.weights._parameters.values()), list(self.biases._parameters.values())
+        weights, biases = parameter_values(self.weights), parameter_values(self.biases)
         in_mask, out_mask, out_bias_mask = self.in_mask, self.out_mask, self.out_bias_mask
         large = self._large and self.use_onednn and self._relu and x.device.type == "cpu" and x.dtype == th.float32
         # bfloat16 for the large layers of minibatches only: small products (small layers; acting and evaluating on

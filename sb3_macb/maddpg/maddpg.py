@@ -22,6 +22,7 @@ from stable_baselines3.td3 import TD3
 
 from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer, RunSamples
 from sb3_macb.common.atomic import atomic_write, with_suffix
+from sb3_macb.common.fast_ops import lerp_
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
 from sb3_macb.exploration.estimators import make_exploration
 from sb3_macb.exploration.macb import MACB
@@ -674,8 +675,8 @@ class MADDPG(TD3):
     def _update_targets(self) -> None:
         """Polyak averaging of every target network (critics, intrinsic critics, actors) towards its network by ``tau``."""
         with th.no_grad():
-            th._foreach_lerp_(self._critic_target_params, self._critic_params, self.tau)
-            th._foreach_lerp_(self._actor_target_params, self._actor_params, self.tau)
+            lerp_(self._critic_target_params, self._critic_params, self.tau)
+            lerp_(self._actor_target_params, self._actor_params, self.tau)
 
     def _preactivation_penalty(self, raw: th.Tensor) -> th.Tensor:
         """
