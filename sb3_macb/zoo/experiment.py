@@ -63,6 +63,7 @@ def zoo_folder(name: str) -> str:
 
 
 DEFAULT_CONFIG = os.path.join(zoo_folder("hyperparams"), "maddpg.yml")
+DEFAULT_TIMESTEPS = 800_000  # steps per run where neither the command nor the YAML entry says: the paper's 4e4 episodes of 20
 EXPERIMENT_FILE = "experiment.json"
 CHECKPOINT_DIR = "checkpoint"
 MODELS_DIR = "models"  # every checkpoint's model, with keep_models
@@ -509,6 +510,34 @@ class RunConfig:
     folder: str
     variants: list[str] = field(default_factory=list)
     hyperparams: dict[str, Any] = field(default_factory=dict)
+
+
+def make_run(
+    env_id: str,
+    seed: int,
+    folder: str,
+    variants: list[str] | tuple[str, ...] = (),
+    overrides: dict[str, Any] | None = None,
+    conf_file: str | None = None,
+    n_timesteps: int | None = None,
+) -> tuple[RunConfig, int]:
+    """
+    One run of ``env_id`` from the zoo YAML (the one function that turns settings into a run, for ``sb3-macb
+    train``, the sweep and scripts): its hyperparameters (the env's entry with ``variants`` and ``overrides``
+    applied, see :func:`load_hyperparams`) and its steps.
+
+    :param env_id: The env id (a top-level key of the YAML file).
+    :param seed: The run's seed.
+    :param folder: The run's folder.
+    :param variants: Names from the file's ``variants`` section, applied in order.
+    :param overrides: Hyperparameters applied last.
+    :param conf_file: The YAML file (default: the package's ``maddpg.yml``).
+    :param n_timesteps: Steps per run; None: the entry's ``n_timesteps``, else :data:`DEFAULT_TIMESTEPS`.
+    :return: The run and its steps.
+    """
+    hyperparams = load_hyperparams(env_id, conf_file, list(variants), overrides)
+    steps = int(n_timesteps if n_timesteps is not None else hyperparams.get("n_timesteps", DEFAULT_TIMESTEPS))
+    return RunConfig(seed=int(seed), folder=folder, variants=list(variants), hyperparams=hyperparams), steps
 
 
 @dataclass

@@ -354,14 +354,14 @@ def run_trial(
     Train one grid point (:func:`~sb3_macb.zoo.experiment.run_experiment`); return (success rate, count-1, folder).
     ``callbacks`` run at every step (a worker's check of its storage).
     """
-    from sb3_macb.zoo.experiment import load_hyperparams, run_experiment
+    from sb3_macb.zoo.experiment import make_run, run_experiment
 
     variants = [v for v in str(config.get("variant") or "").split(",") if v]
     overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
-    hyperparams = load_hyperparams(config["env"], config.get("conf_file"), variants, overrides)
-    n_timesteps = int(config.get("n_timesteps") or hyperparams.get("n_timesteps", 800_000))
+    run, n_timesteps = make_run(config["env"], int(params["seed"]), run_folder, variants, overrides,
+                                config.get("conf_file"), config.get("n_timesteps") or None)  # fmt: skip
     run_experiment(
-        config["env"], hyperparams, int(params["seed"]), n_timesteps, run_folder, variants,
+        config["env"], run.hyperparams, run.seed, n_timesteps, run_folder, variants,
         eval_freq=int(config.get("eval_freq", 20)), eval_episodes=int(config.get("eval_episodes", 10)), callbacks=callbacks,
     )  # fmt: skip
     return _trial_result(config, run_folder)
@@ -399,7 +399,7 @@ def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], l
     :param callbacks: Callbacks run at every step (a worker's check of its storage).
     :return: For each point, (success rate, count-1 fraction, run folder), or the error that refused it.
     """
-    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, make_run
 
     variants = [v for v in str(config.get("variant") or "").split(",") if v]
     eval_freq, eval_episodes = int(config.get("eval_freq", 20)), int(config.get("eval_episodes", 10))
@@ -408,10 +408,9 @@ def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], l
     for number, params in points:
         overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
         try:
-            hyperparams = load_hyperparams(config["env"], config.get("conf_file"), variants, overrides)
-            run = RunConfig(seed=int(params["seed"]), folder=os.path.join(log_folder, f"trial_{number}"), variants=variants,
-                            hyperparams=hyperparams)  # fmt: skip
-            n_timesteps = int(config.get("n_timesteps") or hyperparams.get("n_timesteps", 800_000))
+            folder = os.path.join(log_folder, f"trial_{number}")
+            run, n_timesteps = make_run(config["env"], int(params["seed"]), folder, variants, overrides,
+                                        config.get("conf_file"), config.get("n_timesteps") or None)  # fmt: skip
             ExperimentConfig(config["env"], [deepcopy(run)], n_timesteps=n_timesteps, eval_freq=eval_freq,
                              eval_episodes=eval_episodes, env_kwargs=env_kwargs)  # fmt: skip
             outcomes.append((run, n_timesteps))

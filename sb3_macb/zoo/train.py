@@ -38,13 +38,12 @@ from sb3_macb.zoo.experiment import (
     Experiment,
     ExperimentConfig,
     ExperimentError,
-    RunConfig,
     callback_entries,
     check_hyperparams,
     check_values,
     evaluate_string,
-    load_hyperparams,
     make_callbacks,
+    make_run,
     unsupported_keys,
     valid_device,
 )
@@ -248,8 +247,10 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     variants = [v for v in args.variant.split(",") if v]
     params = _pairs(args.hyperparams, "-params", args.unsafe_eval)
     check_hyperparams({key.split(".")[0]: None for key in params}, "-params")  # a typo there is named there
-    hyperparams = load_hyperparams(args.env, args.conf_file, variants, {**(overrides or {}), **params})
-    n_timesteps = args.n_timesteps if args.n_timesteps is not None else int(hyperparams.get("n_timesteps", 800_000))
+    run, n_timesteps = make_run(
+        args.env, 0, "", variants, {**(overrides or {}), **params}, args.conf_file, args.n_timesteps
+    )  # (seed and folder are settled below)
+    hyperparams = run.hyperparams
     env_kwargs = _pairs(args.env_kwargs, "--env-kwargs", args.unsafe_eval)
     if args.resume and args.seed < 0:  # a random seed is the one the run recorded
         saved = _saved_seed(args.resume)
@@ -271,9 +272,10 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
         return _optimize(args, hyperparams, env_kwargs, n_timesteps, tensorboard_log)
 
     folder = args.resume or _new_run_folder(args.log_folder, args.algo, args.env)
+    run.seed, run.folder = args.seed, folder
     config = ExperimentConfig(
         args.env,
-        [RunConfig(seed=args.seed, folder=folder, variants=variants, hyperparams=hyperparams)],
+        [run],
         n_timesteps=n_timesteps,
         eval_freq=args.eval_freq,
         eval_episodes=args.eval_episodes,

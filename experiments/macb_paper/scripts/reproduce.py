@@ -83,7 +83,7 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     import torch as th
 
     _exit_with_parent()
-    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, RunConfig, load_hyperparams
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run
 
     th.set_num_threads(1)
     env_id, folder, env_kwargs = TASKS[args.task]
@@ -92,9 +92,8 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     try:
         for variant, seed in jobs:
             variants = variant.split(",") + (["fast"] if args.fast else [])  # "maddpg,refcode": applied in order
-            hyperparams = load_hyperparams(env_id, variants=variants)
             run_folder = os.path.join(root, variant.replace(",", "+"), f"seed_{seed}")
-            runs.append(RunConfig(seed=seed, folder=run_folder, variants=variants, hyperparams=hyperparams))
+            runs.append(make_run(env_id, seed, run_folder, variants, n_timesteps=args.n_timesteps)[0])
         config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
         experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
         status = experiment.status()
@@ -113,7 +112,7 @@ def main() -> None:
     parser.add_argument("--task", choices=sorted(TASKS), required=True)
     parser.add_argument("--variants", nargs="+", required=True)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("-n", "--n-timesteps", type=int, default=800_000, help="steps per run")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=800_000, help="steps per run (the paper's 4e4 episodes)")
     parser.add_argument("--fast", action="store_true", help="64-64 networks (the 'fast' variant)")
     parser.add_argument("--pack", type=int, default=1, help="runs trained together in one process (at most)")
     parser.add_argument("--mix-seeds", action="store_true",
