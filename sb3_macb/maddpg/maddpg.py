@@ -768,7 +768,7 @@ class MADDPG(TD3):
         """
         Every agent's action for one step of a PettingZoo ``ParallelEnv``, from its dict of observations (the
         agents' own observations, as ``env.step`` and ``env.reset`` return them): continuous actions as arrays of the
-        agent's size, discrete ones as action indices, ready for ``env.step``.
+        agent's size, discrete ones as action indices, ready for ``env.step``::
 
             observations, _ = env.reset(seed=0)
             while env.agents:
