@@ -1,3 +1,4 @@
+import csv
 import os
 import signal
 import subprocess
@@ -504,6 +505,14 @@ def test_train_help_lists_the_packages_options_and_optimize_runs_without_argv(tm
     assert sys.argv == argv  # the command line of the process is left alone
     reports = list((tmp_path / "maddpg").glob("report_*.csv"))
     assert len(reports) == 1 and len(reports[0].read_text().splitlines()) == 3  # header + 2 trials
+    # the trials' value is the success rate of their last evaluation (a sparse return would be <= -1 here)
+    with open(reports[0], newline="") as file:
+        values = [float(row["value"]) for row in csv.DictReader(file)]
+    assert all(0.0 <= v <= 1.0 for v in values), values
+    import rl_zoo3.exp_manager
+    from rl_zoo3.callbacks import TrialEvalCallback
+
+    assert rl_zoo3.exp_manager.TrialEvalCallback is TrialEvalCallback  # rl_zoo3 left as it was
 
 
 def test_rl_zoo3_keys_the_runs_cannot_restore_are_refused_before_anything_is_written(tmp_path):

@@ -346,5 +346,33 @@ def _optimize(args: argparse.Namespace, hyperparams: dict[str, Any], env_kwargs:
         verbose=args.verbose, device=args.device, config=args.conf_file or DEFAULT_CONFIG,
     )  # fmt: skip
     manager.setup_experiment()
-    manager.hyperparameters_optimization()
+    # the trials' score is the success rate, as a run's best model and the sweep's objective (rl_zoo3 builds its
+    # trial callback by this module-level name; restored afterwards)
+    import rl_zoo3.exp_manager
+
+    original = rl_zoo3.exp_manager.TrialEvalCallback
+    rl_zoo3.exp_manager.TrialEvalCallback = _success_trial_callback(original)
+    try:
+        manager.hyperparameters_optimization()
+    finally:
+        rl_zoo3.exp_manager.TrialEvalCallback = original
     return None
+
+
+def _success_trial_callback(base: type) -> type:
+    """
+    rl_zoo3's ``TrialEvalCallback`` whose score (what each evaluation reports to the trial, and the trial's value) is
+    the evaluation's success rate where the episodes report ``is_success``, else the mean reward as in rl_zoo3.
+    """
+
+    class SuccessTrialEvalCallback(base):  # type: ignore[valid-type,misc]
+        @property
+        def last_mean_reward(self) -> float:
+            successes = getattr(self, "_is_success_buffer", None)  # (the latest evaluation's episodes)
+            return float(sum(successes) / len(successes)) if successes else self._last_reward
+
+        @last_mean_reward.setter
+        def last_mean_reward(self, value: float) -> None:  # what EvalCallback sets after each evaluation
+            self._last_reward = value
+
+    return SuccessTrialEvalCallback
