@@ -515,6 +515,18 @@ def test_train_help_lists_the_packages_options_and_optimize_runs_without_argv(tm
     assert rl_zoo3.exp_manager.TrialEvalCallback is TrialEvalCallback  # rl_zoo3 left as it was
 
 
+def test_optimize_keeps_its_trials_in_a_journal_file(tmp_path):
+    journal = tmp_path / "optuna.log"
+    for _ in range(2):  # a second worker (here: after the first) adds to the same study
+        train(["--env", COMM, "-n", "40", "-f", str(tmp_path), "--seed", "0", "--variant", "fast", "--optimize",
+               "--n-trials", "1", "--n-startup-trials", "2", "--n-evaluations", "1", "--eval-episodes", "2",
+               "--eval-freq", "20", "-params", "learning_starts:10", "--verbose", "0", "--no-progress",
+               "--storage", str(journal), "--study-name", "s"])  # fmt: skip
+    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(journal)))
+    study = optuna.load_study(study_name="s", storage=storage)
+    assert [t.state for t in study.trials] == [TrialState.COMPLETE] * 2
+
+
 def test_rl_zoo3_keys_the_runs_cannot_restore_are_refused_before_anything_is_written(tmp_path):
     from sb3_macb.zoo.experiment import ExperimentError
 

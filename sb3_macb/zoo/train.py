@@ -136,7 +136,9 @@ def make_parser() -> argparse.ArgumentParser:
     search.add_argument("--pruner", default="median", choices=["halving", "median", "none"])
     search.add_argument("--n-startup-trials", type=int, default=10)
     search.add_argument("--n-evaluations", type=int, default=None)
-    search.add_argument("--storage", default=None)
+    search.add_argument("--storage", default=None,
+                        help="Optuna storage: an RDB URL (sqlite:///..., postgresql://...) or a file PATH.log, "
+                        "which rl_zoo3 opens as Optuna's journal storage (several workers, no server)")  # fmt: skip
     search.add_argument("--study-name", default=None)
     return parser
 
