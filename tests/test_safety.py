@@ -67,6 +67,8 @@ MISTAKES = [
     (["-params", "exploration.normalize:'mean'"], ["exploration", "normalize"]),
     (["-params", "intrinsic_gamma:2"], ["intrinsic_gamma"]),
     (["-params", "exploration.estimator:'icm'"], ["exploration", "estimator"]),
+    (["-params", "gamma:-'a'"], ["gamma", "not allowed"]),  # only numbers take a minus sign
+    (["-params", "gamma:-True"], ["gamma", "not allowed"]),
 ]
 
 

@@ -120,7 +120,9 @@ def safe_eval(text: str, where: str) -> Any:
         if isinstance(node, ast.Dict):
             return {convert(k): convert(v) for k, v in zip(node.keys, node.values)}  # type: ignore[arg-type]
         if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub) and isinstance(node.operand, ast.Constant):
-            return -node.operand.value
+            value = node.operand.value
+            if isinstance(value, (int, float)) and not isinstance(value, bool):  # a negative number, nothing else
+                return -value
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
             return {kw.arg: convert(kw.value) for kw in node.keywords if kw.arg is not None}
         if isinstance(node, (ast.Attribute, ast.Name)):
