@@ -612,6 +612,11 @@ def test_enjoy_plays_a_run_folder_and_names_what_is_missing(tmp_path, capsys):
     assert "{'max_cycles': 10}" in out  # the run's own env kwargs, from its config.yml
     again = enjoy([folder, "-n", "3", "--seed", "1", "--model", "final"])
     assert len(again) == 3
+    # recorded on the mpe2-based env: the same episodes, one mp4 each
+    recorded = enjoy([folder, "-n", "3", "--seed", "1", "--record", str(tmp_path / "videos")])
+    assert [r["success"] for r in recorded] == [r["success"] for r in records]
+    assert all(np.allclose(a["returns"], b["returns"], atol=1e-5) for a, b in zip(recorded, records))
+    assert len(list((tmp_path / "videos").glob("episode-episode-*.mp4"))) == 3
     assert cli(["enjoy", str(tmp_path / "nowhere")]) == 2
     assert "no such run folder" in capsys.readouterr().err
     (Path(folder) / "config.yml").write_text("env_id: os.system\n")

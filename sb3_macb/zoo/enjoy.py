@@ -4,10 +4,13 @@ and every agent's return, then their means.
 
     sb3-macb enjoy logs/maddpg/sb3_macb-CommunicativeNavigation-v0_1 -n 10
     sb3-macb enjoy RUN_FOLDER --model final --seed 3
+    sb3-macb enjoy RUN_FOLDER -n 3 --record videos/      # and one mp4 per episode in videos/
 
 The run folder's ``best_model.zip`` (or ``model.zip``: ``--model final``) is played with the deterministic actors on
 the env id and env kwargs of the folder's ``config.yml`` (read as plain YAML data). Model zips are pickles: loading
-one runs code that it names, so play only run folders you trust.
+one runs code that it names, so play only run folders you trust. With ``--record``, the episodes are played on the
+task's mpe2-based env (step for step the same as the vectorized one) and gymnasium's ``RecordVideo`` writes each as
+an mp4 from its ``rgb_array`` frames (moviepy, in the ``zoo`` extra).
 """
 
 import argparse
@@ -31,6 +34,8 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", choices=["best", "final"], default="best",
                         help="best_model.zip (by success rate; model.zip where there is none) or model.zip")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of the episodes' starts")
+    parser.add_argument("--record", metavar="VIDEO_FOLDER", default=None,
+                        help="also write each episode as an mp4 into VIDEO_FOLDER (created if missing)")  # fmt: skip
     return parser
 
 
@@ -78,23 +83,53 @@ def enjoy(argv: list[str]) -> list[dict[str, Any]]:
     if args.n_episodes < 1:
         raise ExperimentError(f"-n/--n-episodes must be >= 1, got {args.n_episodes}")
     path, env_id, env_kwargs = _run_settings(args.run_folder, args.model)
-    env = make_task_vec_env(env_id, 1, env_kwargs)
-    model = MADDPG.load(path, env=env, device="cpu")  # (a pickle: see the module's docstring)
+    if args.record is not None:
+        try:
+            import moviepy  # noqa: F401  (what RecordVideo writes with)
+        except ImportError:
+            raise ExperimentError("--record needs moviepy: pip install 'sb3_macb[zoo]' (or moviepy)") from None
+    model = MADDPG.load(path, device="cpu")  # (a pickle: see the module's docstring)
     agents = list(model.agent_layout.agents)  # type: ignore[union-attr]
     print(f"{path} on {env_id} {env_kwargs or ''}".rstrip())
-    env.seed(args.seed)
-    obs = env.reset()
     records: list[dict[str, Any]] = []
+
+    def finished(returns: np.ndarray, info: dict[str, Any]) -> None:
+        records.append({"success": bool(info.get("is_success", False)), "returns": returns.copy()})
+        per_agent = ", ".join(f"{name} {value:.2f}" for name, value in zip(agents, returns))
+        print(f"episode {len(records)}: success {int(records[-1]['success'])}, return {per_agent}")
+
     returns = np.zeros(len(agents))
-    while len(records) < args.n_episodes:
-        action, _ = model.predict(obs, deterministic=True)
-        obs, _, dones, infos = env.step(action)
-        returns += infos[0]["agent_rewards"]
-        if dones[0]:
-            records.append({"success": bool(infos[0].get("is_success", False)), "returns": returns.copy()})
-            per_agent = ", ".join(f"{name} {value:.2f}" for name, value in zip(agents, returns))
-            print(f"episode {len(records)}: success {int(records[-1]['success'])}, return {per_agent}")
-            returns = np.zeros(len(agents))
+    if args.record is None:
+        env = make_task_vec_env(env_id, 1, env_kwargs)
+        env.seed(args.seed)
+        obs = env.reset()
+        while len(records) < args.n_episodes:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, dones, infos = env.step(action)
+            returns += infos[0]["agent_rewards"]
+            if dones[0]:
+                finished(returns, infos[0])
+                returns = np.zeros(len(agents))
+    else:
+        import gymnasium as gym
+        from gymnasium.wrappers import RecordVideo
+
+        video_env = RecordVideo(gym.make(env_id, render_mode="rgb_array", **env_kwargs), args.record,
+                                episode_trigger=lambda _: True, name_prefix="episode", disable_logger=True)  # fmt: skip
+        try:
+            single, _ = video_env.reset(seed=args.seed)
+            while len(records) < args.n_episodes:
+                action, _ = model.predict(single, deterministic=True)
+                single, _, terminated, truncated, info = video_env.step(action)
+                returns += info["agent_rewards"]
+                if terminated or truncated:
+                    finished(returns, info)
+                    returns = np.zeros(len(agents))
+                    if len(records) < args.n_episodes:  # (a reset would start recording one more episode)
+                        single, _ = video_env.reset()
+        finally:
+            video_env.close()
+        print(f"videos in {args.record}")
     mean = np.mean([r["returns"] for r in records], axis=0)
     print(f"success rate {np.mean([r['success'] for r in records]):.2f} over {len(records)} episodes; mean return "
           + ", ".join(f"{name} {value:.2f}" for name, value in zip(agents, mean)))  # fmt: skip
