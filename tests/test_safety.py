@@ -69,6 +69,8 @@ MISTAKES = [
     (["-params", "exploration.estimator:'icm'"], ["exploration", "estimator"]),
     (["-params", "gamma:-'a'"], ["gamma", "not allowed"]),  # only numbers take a minus sign
     (["-params", "gamma:-True"], ["gamma", "not allowed"]),
+    (["--save-freq", "0"], ["--save-freq", ">= 1"]),
+    (["--save-freq", "50", "--checkpoint-freq", "40"], ["--save-freq", "--checkpoint-freq"]),
 ]
 
 

@@ -622,3 +622,10 @@ def test_enjoy_plays_a_run_folder_and_names_what_is_missing(tmp_path, capsys):
     (Path(folder) / "config.yml").write_text("env_id: os.system\n")
     assert cli(["enjoy", folder]) == 2
     assert "'env_id' must name a registered env" in capsys.readouterr().err
+
+
+def test_save_freq_keeps_the_model_every_n_steps(tmp_path):
+    folder = Path(run_train(tmp_path, "-n", "100", "--variant", "fast", "--save-freq", "50"))
+    assert sorted(p.name for p in (folder / "models").glob("*.zip")) == ["step_50.zip"]  # (the last: model.zip)
+    assert MADDPG.load(folder / "models" / "step_50.zip").num_timesteps == 50
+    assert MADDPG.load(folder / "model.zip").num_timesteps == 100

@@ -125,6 +125,8 @@ def make_parser() -> argparse.ArgumentParser:
     add("--checkpoint-freq", type=int, default=None, help="checkpoint every N steps into the run folder")
     add("--resume", metavar="RUN_FOLDER", default=None, help="continue a checkpointed run (same command)")
     add("--keep-models", action="store_true", help="keep every checkpoint's model as RUN_FOLDER/models/step_N.zip")
+    add("--save-freq", type=int, default=-1, help="rl_zoo3's option: keep the model every N steps (here a checkpoint "
+        "every N steps with --keep-models: RUN_FOLDER/models/step_N.zip; the last is model.zip); -1: none")  # fmt: skip
     add("--save-replay-buffer", action="store_true", help="also save the final replay buffer as RUN_FOLDER/replay_buffer.pkl")
     add("-i", "--trained-agent", default=None, help="rl_zoo3's option to continue a saved model: not supported "
         "(continue a checkpointed run with --resume RUN_FOLDER)")  # fmt: skip
@@ -175,6 +177,13 @@ def _check_arguments(args: argparse.Namespace) -> None:
     if args.eval_episodes < 1:
         raise ExperimentError(f"--eval-episodes must be >= 1, got {args.eval_episodes}")
     args.eval_freq = max(args.eval_freq, 0)  # rl_zoo3: a negative frequency turns evaluation off
+    if args.save_freq == 0 or args.save_freq < -1:
+        raise ExperimentError(f"--save-freq must be >= 1 step (or -1: none), got {args.save_freq}")
+    if args.save_freq > 0:
+        if args.checkpoint_freq is not None and args.checkpoint_freq != args.save_freq:
+            raise ExperimentError(f"--save-freq {args.save_freq} and --checkpoint-freq {args.checkpoint_freq}: models are "
+                                  "kept at the checkpoints, so give one of the two (or both equal)")  # fmt: skip
+        args.checkpoint_freq, args.keep_models = args.save_freq, True
     if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
         raise ExperimentError(f"--checkpoint-freq must be >= 1 step, got {args.checkpoint_freq}")
     if not valid_device(args.device):
