@@ -1,6 +1,8 @@
 """Evaluation as the paper does it (success rate after every training episode), and early stopping on success."""
 
+import json
 import os
+import time
 from typing import Any
 
 import gymnasium as gym
@@ -161,6 +163,10 @@ class MultiAgentEvalCallback(EvalCallback):
     :param run_log_paths: For a pack: one folder per run for its ``evaluations.npz`` (instead of ``log_path``).
     :param log_freq: Dump the logger and print the summary every this many evaluations (1: after each, as SB3).
         The paper's protocol evaluates 40,000 times: a table each time is unreadable.
+    :param monitor: Also write each run's training episodes (return, length, wall-clock seconds since the run
+        started) to ``monitor.csv`` beside its ``evaluations.npz``, in SB3's Monitor format (``load_results`` and
+        rl_zoo3's plots read it). A run that continues from a checkpoint (:meth:`set_state`) first cuts the file back
+        to what it held at that checkpoint, so it ends as an uninterrupted run's would (the times aside).
     """
 
     def __init__(
@@ -184,10 +190,15 @@ class MultiAgentEvalCallback(EvalCallback):
         warn: bool = True,
         run_log_paths: list[str] | None = None,
         log_freq: int = 1,
+        monitor: bool = False,
     ):
         if log_freq < 1:
             raise ValueError(f"log_freq must be >= 1, got {log_freq}")
         self.log_freq = log_freq
+        self.monitor = monitor
+        self._monitor_start: float | None = None  # wall-clock start of the runs (kept across a resume)
+        self._monitor_sizes: list[int] | None = None  # each monitor.csv's size at the checkpoint continued from
+        self._monitor_ready = False  # files started (or cut back) by the first learn() of this process
         self._env_id = eval_env if isinstance(eval_env, str) else None
         self._env_kwargs = env_kwargs
         if isinstance(eval_env, str):
@@ -275,6 +286,34 @@ class MultiAgentEvalCallback(EvalCallback):
         super()._init_callback()
         for path in self.run_log_paths or []:
             os.makedirs(path, exist_ok=True)
+        if self.monitor and not self._monitor_ready:
+            if self._monitor_start is None:
+                self._monitor_start = time.time()
+            for run in range(self.n_runs):  # a new run starts its file afresh; a resumed one cuts it back
+                path = self._monitor_file(run)
+                if path is not None and os.path.exists(path):
+                    with open(path, "r+b") as file:
+                        file.truncate(0 if self._monitor_sizes is None else self._monitor_sizes[run])
+            self._monitor_ready = True
+
+    def _monitor_file(self, run: int) -> str | None:
+        path = self._run_file(run)
+        return None if path is None else os.path.join(os.path.dirname(path), "monitor.csv")
+
+    def _write_monitor(self, run: int, episode: dict[str, Any]) -> None:
+        """One training episode of run ``run`` appended to its monitor.csv (SB3's Monitor format)."""
+        path = self._monitor_file(run)
+        if path is None:
+            return
+        assert self._monitor_start is not None
+        new = not os.path.exists(path) or os.path.getsize(path) == 0
+        with open(path, "a") as file:
+            if new:
+                header = {"t_start": self._monitor_start, **({"env_id": self._env_id} if self._env_id else {})}
+                file.write("#" + json.dumps(header) + "\n")
+                file.write("r,l,t\n")
+            seconds = round(time.time() - self._monitor_start, 6)
+            file.write(f"{round(float(episode['r']), 6)},{int(episode['l'])},{seconds}\n")
 
     # --- checkpoints: what the callback has recorded so far -------------------------------------------------------
 
@@ -289,7 +328,12 @@ class MultiAgentEvalCallback(EvalCallback):
             "best": (self.best_success_rate, self.best_mean_reward),
             "last": (self.last_success_rate, self.last_mean_reward),
             "after_eval": [_counters(c) for c in self._after_eval_callbacks()],
+            "monitor": (self._monitor_start, [self._monitor_size(run) for run in range(self.n_runs)]),
         }
+
+    def _monitor_size(self, run: int) -> int:
+        path = self._monitor_file(run) if self.monitor else None
+        return os.path.getsize(path) if path is not None and os.path.exists(path) else 0
 
     def _after_eval_callbacks(self) -> list[BaseCallback]:
         if self.callback is None:
@@ -307,6 +351,8 @@ class MultiAgentEvalCallback(EvalCallback):
         self.run_training_collisions = state["run_training_collisions"]
         self.best_success_rate, self.best_mean_reward = state["best"]
         self.last_success_rate, self.last_mean_reward = state["last"]
+        self._monitor_start, self._monitor_sizes = state.get("monitor", (None, [0] * self.n_runs))
+        self._monitor_ready = False  # the next learn() cuts the files back to this checkpoint
         saved, mine = state.get("after_eval", []), self._after_eval_callbacks()
         if len(saved) != len(mine):
             raise ValueError(f"the checkpoint has {len(saved)} callback(s) after evaluation, this run {len(mine)}")
@@ -358,6 +404,10 @@ class MultiAgentEvalCallback(EvalCallback):
                 self.run_training_collisions[e // per_run] += _collisions(info)
             if dones is not None:
                 self.run_episodes += np.asarray(dones, dtype=np.int64).reshape(self.n_runs, per_run).sum(axis=1)
+                if self.monitor:
+                    for e in np.flatnonzero(dones):
+                        if "episode" in infos[e]:  # (VecMonitor's record of the episode)
+                            self._write_monitor(int(e) // per_run, infos[e]["episode"])
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
         return self._evaluate()

@@ -46,7 +46,7 @@ for h in hp:
     h["intrinsic_critic"] = True  # (and both runs learn their bonus with intrinsic critics)
 runs = [RunConfig(seed=s, folder=f"{{root}}/{{tag}}/run_{{s}}", hyperparams=h) for s, h in zip((0, 1), hp)]
 config = ExperimentConfig("{env}", runs, n_timesteps=steps)
-Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0).run(resume=len(sys.argv) > 4)
+Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0, monitor=True).run(resume=len(sys.argv) > 4)
 """.format(env=COMM)
 
 
@@ -80,6 +80,12 @@ def test_a_run_killed_and_resumed_gives_the_same_evaluations(tmp_path):
         for name in whole.files:
             assert np.array_equal(whole[name], cut[name]), name
         assert json.loads((tmp_path / "cut" / run / "run.json").read_text())["complete"]
+        # the training episodes in SB3's Monitor format: the same rows (wall times aside), none written twice
+        from stable_baselines3.common.monitor import load_results
+
+        whole_eps, cut_eps = load_results(str(tmp_path / "whole" / run)), load_results(str(tmp_path / "cut" / run))
+        assert len(whole_eps) == 60 and list(whole_eps["l"]) == [20] * 60
+        assert np.array_equal(whole_eps["r"].to_numpy(), cut_eps["r"].to_numpy())
     assert not (tmp_path / "cut" / "checkpoint").exists()  # deleted when the experiment ends
 
 

@@ -629,3 +629,6 @@ def test_save_freq_keeps_the_model_every_n_steps(tmp_path):
     assert sorted(p.name for p in (folder / "models").glob("*.zip")) == ["step_50.zip"]  # (the last: model.zip)
     assert MADDPG.load(folder / "models" / "step_50.zip").num_timesteps == 50
     assert MADDPG.load(folder / "model.zip").num_timesteps == 100
+    from stable_baselines3.common.monitor import load_results  # and the training episodes, as rl_zoo3 keeps them
+
+    assert list(load_results(str(folder))["l"]) == [20] * 5

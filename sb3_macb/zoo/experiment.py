@@ -691,12 +691,15 @@ class Experiment:
     :param save_best: Keep ``best_model.zip`` (by success rate) in the run's folder (single runs only).
     :param callbacks: Callbacks run at every step beside the YAML's (e.g. a sweep worker's check of its storage);
         not part of the experiment's settings.
+    :param monitor: Write each run's training episodes to ``monitor.csv`` in its folder (SB3's Monitor format; see
+        :class:`~sb3_macb.callbacks.MultiAgentEvalCallback`).
     """
 
     def __init__(self, config: ExperimentConfig, folder: str, checkpoint_freq: int | None = None,
                  keep_checkpoint: bool = False, verbose: int = 1, progress_bar: bool = False,
                  tensorboard_log: str | None = None, log_interval: int | None = None, eval_log_freq: int | None = None,
-                 save_best: bool = False, keep_models: bool = False, callbacks: list[BaseCallback] | None = None):  # fmt: skip
+                 save_best: bool = False, keep_models: bool = False, callbacks: list[BaseCallback] | None = None,
+                 monitor: bool = False):  # fmt: skip
         if checkpoint_freq is not None and checkpoint_freq < 1:
             raise ExperimentError(f"checkpoint_freq must be >= 1 step, got {checkpoint_freq}")
         # absolute folders: what a run writes does not depend on the working directory of a later resume
@@ -713,6 +716,8 @@ class Experiment:
         self.log_interval = log_interval
         self.eval_log_freq = eval_log_freq
         self.save_best = bool(save_best) and len(config.runs) == 1
+        # (a run that wrote a monitor.csv goes on writing it, however it is resumed)
+        self.monitor = monitor or any(os.path.exists(os.path.join(r.folder, "monitor.csv")) for r in config.runs)
         self.user_callbacks: list[BaseCallback] = []
         self.callbacks = list(callbacks or [])
         self.stopped_early = False
@@ -849,6 +854,7 @@ class Experiment:
             log_freq=self.eval_log_freq or 1,
             verbose=0 if self.eval_log_freq is None else 1,
             warn=False,
+            monitor=self.monitor,
         )
 
     # --- running -----------------------------------------------------------------------------------------------------

@@ -304,6 +304,7 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     experiment = Experiment(
         config,
         folder,
+        monitor=True,  # RUN_FOLDER/monitor.csv, as rl_zoo3 writes one
         checkpoint_freq=args.checkpoint_freq,
         verbose=min(args.verbose, 1),
         progress_bar=not args.no_progress,
