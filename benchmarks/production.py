@@ -115,7 +115,7 @@ def gemm_floor_ms(net: list[int], repeats: int = 50) -> float:
     from sb3_macb.common.grouped_mlp import onednn_available
 
     try:  # this checkout's fenced oneDNN GEMM (a baseline checkout may predate the fence)
-        from sb3_macb.common.fast_ops import ONEDNN_LINEAR
+        from sb3_macb.common.private_apis import ONEDNN_LINEAR
     except ImportError:
         ONEDNN_LINEAR = th.ops.mkldnn._linear_pointwise if onednn_available() else None
 

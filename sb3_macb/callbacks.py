@@ -12,6 +12,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
 from sb3_macb.common import evaluations
+from sb3_macb.common.private_apis import set_next_reset_seeds
 
 
 class _SuccessRateStop(BaseCallback):
@@ -119,7 +120,7 @@ def make_eval_vec_env(
         # (gymnasium imports the module of a "module:Env" id: only ids already registered are taken)
         raise ValueError(f"eval_env {env_id!r} is not a registered gymnasium env id")
     env = make_task_vec_env(env_id, n_eval_episodes * len(seeds), env_kwargs)
-    env.unwrapped._seeds = [None if seed is None else seed + i for seed in seeds for i in range(n_eval_episodes)]
+    set_next_reset_seeds(env.unwrapped, [None if seed is None else seed + i for seed in seeds for i in range(n_eval_episodes)])
     return env
 
 

@@ -5,7 +5,7 @@ from typing import Any
 
 import torch as th
 
-from sb3_macb.common.fast_ops import fused_adam_
+from sb3_macb.common.private_apis import fused_adam_
 
 
 class BlockAdam(th.optim.Adam):

@@ -6,7 +6,7 @@ Two interchangeable execution paths compute the same function and gradients:
 
 - a portable path built from ``torch.baddbmm`` (any device, any activation, autograd does the backward);
 - on CPU, for float32 and ReLU, one autograd ``Function`` for all groups and layers with a hand-written backward,
-  calling one GEMM per group and layer: oneDNN's (:data:`~sb3_macb.common.fast_ops.ONEDNN_LINEAR`) for large layers on
+  calling one GEMM per group and layer: oneDNN's (:data:`~sb3_macb.common.private_apis.ONEDNN_LINEAR`) for large layers on
   AVX-512 CPUs, where it runs these shapes about twice as fast as MKL, and ``torch.addmm``/``mm`` (MKL) elsewhere
   and for small layers, where a call's fixed cost dominates. Each group's products are the same calls alone or in a
   pack.
@@ -18,7 +18,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
-from sb3_macb.common.fast_ops import ONEDNN_LINEAR, parameter_values
+from sb3_macb.common.private_apis import ONEDNN_LINEAR, parameter_values
 
 PRECISIONS = {"fp32": None, "bf16": th.bfloat16}  # GroupedMLP's precision option: the dtype of the products
 
@@ -28,7 +28,7 @@ ONEDNN_MIN_WEIGHTS = 8192
 ONEDNN_MIN_ROWS = 16
 
 
-_LINEAR = ONEDNN_LINEAR  # (probed in fast_ops)
+_LINEAR = ONEDNN_LINEAR  # (probed in private_apis)
 
 
 def _onednn_bf16_works() -> bool:

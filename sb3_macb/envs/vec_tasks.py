@@ -22,6 +22,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
+from sb3_macb.common.private_apis import next_reset_seeds
 from sb3_macb.envs.joint_env import AgentLayout
 from sb3_macb.envs.task_constants import (
     COMMUNICATION,
@@ -121,9 +122,9 @@ class TaskVecEnv(VecEnv):
         self.episode_collisions[i] = 0
 
     def reset(self) -> np.ndarray:
-        for i in range(self.num_envs):
-            if self._seeds[i] is not None:
-                self.rngs[i] = seeding.np_random(self._seeds[i])[0]
+        for i, seed in enumerate(next_reset_seeds(self)):
+            if seed is not None:
+                self.rngs[i] = seeding.np_random(seed)[0]
             self._reset_env(i)
         self._reset_seeds()
         self._reset_options()

@@ -22,7 +22,7 @@ from stable_baselines3.td3 import TD3
 
 from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer, RunSamples
 from sb3_macb.common.atomic import atomic_write, with_suffix
-from sb3_macb.common.fast_ops import lerp_
+from sb3_macb.common.private_apis import lerp_, set_next_reset_seeds
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
 from sb3_macb.exploration.estimators import make_exploration
 from sb3_macb.exploration.macb import MACB
@@ -324,7 +324,7 @@ class MADDPG(TD3):
             venv: VecEnv = self.env
             while isinstance(venv, VecEnvWrapper):
                 venv = venv.venv
-            venv._seeds = seeds  # what VecEnv.seed() sets, with one seed per env instead of seed + index
+            set_next_reset_seeds(venv, seeds)  # one seed per env instead of seed + index
 
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1

@@ -50,6 +50,7 @@ import yaml
 from optuna.trial import TrialState
 
 from sb3_macb.common import evaluations
+from sb3_macb.common.private_apis import trial_id
 
 T = TypeVar("T")
 
@@ -603,7 +604,7 @@ def _work_on_pack(
             trial = study.ask()  # takes a waiting (queued) trial when there is one
         # a heartbeat at once: Optuna never finds a RUNNING trial stale before its first heartbeat, so a worker
         # killed before that would leave its point running for ever
-        storage.record_heartbeat(trial._trial_id)
+        storage.record_heartbeat(trial_id(trial, storage, study.study_name))
         if not trial.user_attrs.get("grid_point"):
             study.tell(trial, state=TrialState.PRUNED)  # another worker took the last queued point
             break
@@ -613,7 +614,7 @@ def _work_on_pack(
     if not claimed:
         return
     try:
-        with _Heartbeats(storage, [t._trial_id for t, _ in claimed], heartbeat) as beats:
+        with _Heartbeats(storage, [trial_id(t, storage, study.study_name) for t, _ in claimed], heartbeat) as beats:
             if alone:
                 [(trial, params)] = claimed
                 results: list[Any] = [

@@ -1,9 +1,11 @@
 """
-PyTorch's private fast paths, fenced in one place.
+The private APIs of other libraries that sb3_macb uses, fenced in one place.
 
-Each is probed once at import: it must exist and compute what its public fallback computes on a small example.
-Where a probe fails (a PyTorch version that renamed or dropped the operator), the public fallback runs instead and
-gives the same results. Setting ``use_private = False`` runs every fallback (the tests compare the two).
+PyTorch's fast paths are probed once at import: each must exist and compute what its public fallback computes on a
+small example. Where a probe fails (a PyTorch version that renamed or dropped the operator), the public fallback
+runs instead and gives the same results. Setting ``use_private = False`` runs every fallback (the tests compare the
+two). Stable-Baselines3's and Optuna's private attributes are checked where they are used; Optuna's has a public
+fallback, SB3's per-env seeds have none, so a missing attribute is one clear error there.
 
 - :func:`lerp_`: ``torch._foreach_lerp_`` (one call for a list of tensors); fallback ``Tensor.lerp_`` per tensor.
 - :func:`fused_adam_`: ``torch._fused_adam_`` on tensors whose step counters are already counted; fallback
@@ -12,6 +14,15 @@ gives the same results. Setting ``use_private = False`` runs every fallback (the
   ``__iter__`` costs more than a small layer's product); fallback ``list(parameter_list)``.
 - :data:`ONEDNN_LINEAR`: oneDNN's GEMM, ``torch.ops.mkldnn._linear_pointwise`` (None where it is missing or wrong);
   :class:`~sb3_macb.common.grouped_mlp.GroupedMLP` falls back to MKL's ``addmm``/``bmm`` without it.
+- :func:`set_next_reset_seeds` / :func:`next_reset_seeds`: SB3's ``VecEnv._seeds`` (the seeds of the next reset,
+  which ``VecEnv.seed(s)`` sets to ``s + index``; sb3_macb gives each env its own: a pack's runs and the paper's
+  evaluation episodes).
+- :func:`trial_id`: Optuna's ``Trial._trial_id`` (the storage's id, for heartbeats); fallback: the public storage
+  API, from the study's name and the trial's number.
+
+Not fenced, because they are the libraries' own extension points: mpe2's ``_mpe_utils`` (its scenario API, which
+PettingZoo's documentation of custom MPE environments uses) and SB3's ``EvalCallback._is_success_buffer`` (what a
+subclass of ``EvalCallback`` fills).
 """
 
 from collections.abc import Callable
@@ -114,6 +125,51 @@ def parameter_values(parameters: nn.ParameterList) -> list[nn.Parameter]:
     if use_private and PARAMETER_DICT:
         return list(parameters._parameters.values())  # type: ignore[arg-type]
     return list(parameters)
+
+
+def set_next_reset_seeds(venv: Any, seeds: list[int | None]) -> None:
+    """
+    Seed each env of ``venv`` (an SB3 ``VecEnv``, unwrapped) with its own seed at its next reset, as ``VecEnv.seed``
+    does with ``seed + index``.
+
+    :param venv: The VecEnv (not a wrapper).
+    :param seeds: One seed (or None) per env.
+    """
+    _check_seeds_attribute(venv)
+    if len(seeds) != venv.num_envs:
+        raise ValueError(f"{len(seeds)} seeds for {venv.num_envs} envs")
+    venv._seeds = list(seeds)
+
+
+def next_reset_seeds(venv: Any) -> list[int | None]:
+    """The seeds ``venv`` (an SB3 ``VecEnv``) will reset its envs with (None: not seeded)."""
+    _check_seeds_attribute(venv)
+    return venv._seeds
+
+
+def _check_seeds_attribute(venv: Any) -> None:
+    if not isinstance(getattr(venv, "_seeds", None), list):
+        import stable_baselines3
+
+        raise RuntimeError(
+            f"stable-baselines3 {stable_baselines3.__version__} does not keep a VecEnv's next seeds in VecEnv._seeds: "
+            "sb3_macb cannot seed each env (the versions that work are listed in its pyproject.toml)"
+        )
+
+
+def trial_id(trial: Any, storage: Any, study_name: str) -> int:
+    """
+    The storage's id of an Optuna trial (what ``storage.record_heartbeat`` takes).
+
+    :param trial: The ``optuna.Trial``.
+    :param storage: The study's storage.
+    :param study_name: The study's name.
+    """
+    private = getattr(trial, "_trial_id", None)
+    if use_private and isinstance(private, int):
+        return private
+    study_id = storage.get_study_id_from_name(study_name)
+    return int(storage.get_trial_id_from_study_id_trial_number(study_id, trial.number))
 
 
 def describe() -> dict[str, bool]:

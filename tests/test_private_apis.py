@@ -1,12 +1,13 @@
-"""PyTorch's private fast paths (sb3_macb.common.fast_ops) against their public fallbacks: the same numbers."""
+"""The private APIs sb3_macb uses (sb3_macb.common.private_apis) against their public fallbacks: the same results."""
 
+import numpy as np
 import pytest
 import torch as th
 from toy_envs import Rendezvous
 from torch import nn
 
 from sb3_macb import MADDPG
-from sb3_macb.common import fast_ops
+from sb3_macb.common import private_apis
 from sb3_macb.common.block_adam import BlockAdam
 
 
@@ -14,18 +15,18 @@ def both(fn):  # type: ignore[no-untyped-def]
     """``fn()`` with the private fast paths, then with the public fallbacks."""
     results = []
     for private in (True, False):
-        old, fast_ops.use_private = fast_ops.use_private, private
+        old, private_apis.use_private = private_apis.use_private, private
         try:
             results.append(fn())
         finally:
-            fast_ops.use_private = old
+            private_apis.use_private = old
     return results
 
 
 def test_this_torch_offers_the_fast_paths():
     # (so that the comparisons below run the fast paths; a PyTorch without one still works, on the fallback;
     # oneDNN is compared with its fallback in test_maddpg.py and may be missing from a build)
-    paths = fast_ops.describe()
+    paths = private_apis.describe()
     assert paths["foreach_lerp"] and paths["fused_adam"] and paths["parameter_dict"], paths
 
 
@@ -34,7 +35,7 @@ def test_lerp_fast_path_equals_its_fallback():
         gen = th.Generator().manual_seed(0)
         targets = [th.randn(7, 5, generator=gen), th.randn(3, generator=gen)]
         sources = [th.randn(7, 5, generator=gen), th.randn(3, generator=gen)]
-        fast_ops.lerp_(targets, sources, 0.005)
+        private_apis.lerp_(targets, sources, 0.005)
         return targets
 
     fast, public = both(run)
@@ -61,7 +62,7 @@ def test_block_adam_fast_path_equals_its_fallback_over_several_steps():
 
 def test_parameter_values_fast_path_equals_its_fallback():
     plist = nn.ParameterList([nn.Parameter(th.zeros(2)), nn.Parameter(th.ones(3))])
-    fast, public = both(lambda: fast_ops.parameter_values(plist))
+    fast, public = both(lambda: private_apis.parameter_values(plist))
     assert len(fast) == 2 and all(a is b for a, b in zip(fast, public))
 
 
@@ -74,3 +75,28 @@ def test_training_with_the_fallbacks_is_bit_identical(net_arch):
 
     fast, public = both(run)
     assert len(fast) == len(public) and all(th.equal(a, b) for a, b in zip(fast, public))
+
+
+def test_optuna_trial_ids_from_the_private_attribute_and_from_the_public_storage_api(tmp_path):
+    import optuna
+
+    storage = optuna.storages.RDBStorage(f"sqlite:///{tmp_path / 's.db'}")
+    study = optuna.create_study(study_name="s", storage=storage)
+    trials = [study.ask() for _ in range(3)]
+    fast, public = both(lambda: [private_apis.trial_id(t, storage, "s") for t in trials])
+    assert fast == public and len(set(fast)) == 3
+
+
+def test_each_env_of_a_vec_env_gets_its_own_seed_and_a_missing_attribute_is_named():
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    venv = make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 3)
+    private_apis.set_next_reset_seeds(venv.unwrapped, [7, None, 7])
+    assert private_apis.next_reset_seeds(venv.unwrapped) == [7, None, 7]
+    obs = venv.reset()
+    assert np.array_equal(obs[0], obs[2]) and not np.array_equal(obs[0], obs[1])  # the same seed, the same start
+    with pytest.raises(ValueError, match="2 seeds for 3 envs"):
+        private_apis.set_next_reset_seeds(venv.unwrapped, [1, 2])
+    del venv.unwrapped._seeds  # as if a Stable-Baselines3 version kept them elsewhere
+    with pytest.raises(RuntimeError, match="VecEnv._seeds"):
+        private_apis.set_next_reset_seeds(venv.unwrapped, [1, 2, 3])
