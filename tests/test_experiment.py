@@ -72,6 +72,8 @@ def test_a_run_killed_and_resumed_gives_the_same_evaluations(tmp_path):
     run_pack(tmp_path, "whole", 1200)
     run_pack(tmp_path, "cut", 1200, kill_at_checkpoint=500)
     assert not (tmp_path / "cut" / "run_0" / "run.json").exists()
+    with open(tmp_path / "cut" / "run_0" / "monitor.csv", "a") as file:  # as if rows came after the checkpoint
+        file.write("-20.0,20,1.0\n-20.0,2")
     run_pack(tmp_path, "cut", 1200, resume=True)
     for run in ("run_0", "run_1"):
         whole, cut = np.load(tmp_path / "whole" / run / "evaluations.npz"), np.load(tmp_path / "cut" / run / "evaluations.npz")
