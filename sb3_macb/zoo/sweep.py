@@ -377,11 +377,10 @@ def _trial_result(config: dict[str, Any], run_folder: str) -> tuple[float, float
     return success_rate, count1, run_folder
 
 
-PACKABLE_PREFIXES = ("exploration.", "exploration", "noise_std")
-
-
 def _check_packable(config: dict[str, Any]) -> None:
-    bad = [name for name in config["grid"] if not name.startswith(PACKABLE_PREFIXES)]
+    from sb3_macb.zoo.experiment import PACKABLE
+
+    bad = [name for name in config["grid"] if name.split(".")[0] not in PACKABLE]  # (the runner's own rule)
     if bad:
         raise ValueError(
             f"--pack trains several grid points in one process, which needs equal network shapes and training settings: "
