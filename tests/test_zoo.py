@@ -617,6 +617,12 @@ def test_enjoy_plays_a_run_folder_and_names_what_is_missing(tmp_path, capsys):
     assert [r["success"] for r in recorded] == [r["success"] for r in records]
     assert all(np.allclose(a["returns"], b["returns"], atol=1e-5) for a, b in zip(recorded, records))
     assert len(list((tmp_path / "videos").glob("episode-episode-*.mp4"))) == 3
+    (tmp_path / "a_file").write_text("")
+    assert cli(["enjoy", folder, "--record", str(tmp_path / "a_file" / "videos")]) == 2
+    assert "not a writable folder" in capsys.readouterr().err
+    assert cli(["enjoy", folder, "--record", str(tmp_path / "videos")]) == 2  # the videos there are kept
+    assert "already holds episode videos" in capsys.readouterr().err
+    assert len(list((tmp_path / "videos").glob("episode-episode-*.mp4"))) == 3
     assert cli(["enjoy", str(tmp_path / "nowhere")]) == 2
     assert "no such run folder" in capsys.readouterr().err
     (Path(folder) / "config.yml").write_text("env_id: os.system\n")

@@ -88,6 +88,13 @@ def enjoy(argv: list[str]) -> list[dict[str, Any]]:
             import moviepy  # noqa: F401  (what RecordVideo writes with)
         except ImportError:
             raise ExperimentError("--record needs moviepy: pip install 'sb3_macb[zoo]' (or moviepy)") from None
+        ancestor = os.path.abspath(args.record)  # the folder, or what of its path exists
+        while not os.path.exists(ancestor):
+            ancestor = os.path.dirname(ancestor)
+        if not os.path.isdir(ancestor) or not os.access(ancestor, os.W_OK):
+            raise ExperimentError(f"--record {args.record}: cannot write videos there ({ancestor} is not a writable folder)")
+        if os.path.isdir(args.record) and any(n.startswith("episode-") for n in os.listdir(args.record)):
+            raise ExperimentError(f"--record {args.record} already holds episode videos: give another folder")
     model = MADDPG.load(path, device="cpu")  # (a pickle: see the module's docstring)
     agents = list(model.agent_layout.agents)  # type: ignore[union-attr]
     print(f"{path} on {env_id} {env_kwargs or ''}".rstrip())
