@@ -148,8 +148,10 @@ class MultiAgentEvalCallback(EvalCallback):
     :param eval_freq: Evaluate every ``eval_freq`` calls (environment steps per env).
     :param log_path: Folder for ``evaluations.npz`` (None: not saved).
     :param best_model_save_path: Folder for ``best_model.zip`` (None: not saved; not available for packs).
-    :param save_freq: Write ``evaluations.npz`` every this many evaluations (and at the end of training): SB3
-        rewrites it at every evaluation, which at the paper's protocol (40,000 evaluations) is quadratic I/O.
+    :param save_freq: Write ``evaluations.npz`` every this many evaluations, or every tenth of the evaluations so
+        far where that is more, and at the end of training. A write costs time in proportion to the evaluations held
+        (SB3 rewrites the file at every evaluation: quadratic in the run's length); growing the interval with the
+        records keeps the total cost of writing in proportion to the run's length.
     :param deterministic: Evaluate the deterministic policy (no action noise).
     :param stop_success_rate: Stop training once the success rate reaches this value (None: never).
     :param stop_patience: Stop training after this many evaluations without a new best success rate (None: never).
@@ -225,6 +227,7 @@ class MultiAgentEvalCallback(EvalCallback):
         if save_freq < 1:
             raise ValueError(f"save_freq must be >= 1, got {save_freq}")
         self.save_freq = save_freq
+        self._saved_evaluations = 0  # evaluations held at the last write of the files
         self.dump_logs = dump_logs
         self.run_log_paths = run_log_paths
         self.best_success_rate = -np.inf
@@ -346,6 +349,7 @@ class MultiAgentEvalCallback(EvalCallback):
         self.records = state["records"]
         self.n_runs = len(self.records)
         self._alias_records()
+        self._saved_evaluations = len(self.evaluations_timesteps)
         self.n_calls = state["n_calls"]
         self.num_timesteps = state["num_timesteps"]
         self.run_episodes = state["run_episodes"]
@@ -448,7 +452,8 @@ class MultiAgentEvalCallback(EvalCallback):
             record["training_collisions"].append(int(self.run_training_collisions[run]))  # type: ignore[index]
             run_rates.append(float(np.mean(successes)) if successes else None)
             run_returns.append(float(np.mean(record["results"][-1])))
-        if len(self.evaluations_timesteps) % self.save_freq == 0:
+        n_evaluations = len(self.evaluations_timesteps)
+        if n_evaluations - self._saved_evaluations >= max(self.save_freq, n_evaluations // 10):
             self.save_evaluations()
 
         # what SB3's EvalCallback and the stopping rules read (for a pack: means over the runs)
@@ -524,6 +529,7 @@ class MultiAgentEvalCallback(EvalCallback):
             path = self._run_file(run)
             if path is not None and record["timesteps"]:
                 evaluations.save(path, record)
+        self._saved_evaluations = len(self.evaluations_timesteps)
 
     def _on_training_end(self) -> None:
         self.save_evaluations()

@@ -104,6 +104,24 @@ def test_evaluation_file_and_best_model(tmp_path):
     assert saved.num_timesteps == data["timesteps"][best]
 
 
+def test_evaluation_file_written_less_often_as_it_grows(tmp_path, monkeypatch):
+    """Every save_freq evaluations at first, then every tenth of those held; the file ends complete."""
+    from sb3_macb.common import evaluations
+
+    held = []
+    write = evaluations.save
+    monkeypatch.setattr(evaluations, "save", lambda path, record: (held.append(len(record["timesteps"])), write(path, record)))
+    model = make_model(NAV)
+    callback = MultiAgentEvalCallback(NAV, n_eval_episodes=1, eval_freq=1, log_path=str(tmp_path), save_freq=2, seed=2,
+                                      verbose=0)
+    model.learn(120, callback=callback)
+    assert held[:10] == list(range(2, 21, 2))  # (20 // 10 = 2: the interval starts growing past 20 evaluations)
+    gaps = np.diff(held[:-1])
+    assert (gaps >= np.maximum(2, np.array(held[1:-1]) // 10)).all() and gaps[-1] >= 10
+    assert len(held) < 120 // 2  # a write every save_freq evaluations would be 60
+    assert held[-1] == 120 and len(np.load(tmp_path / "evaluations.npz")["timesteps"]) == 120
+
+
 def test_training_collisions_counted():
     class CountCollisions(BaseCallback):
         total = 0
