@@ -3,13 +3,14 @@
 import json
 import os
 import time
+import warnings
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
-from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor, is_vecenv_wrapped, sync_envs_normalization
 
 from sb3_macb.common import evaluations
 from sb3_macb.common.private_apis import set_next_reset_seeds
@@ -162,7 +163,7 @@ class MultiAgentEvalCallback(EvalCallback):
     :param seed: Seed of the eval env when it is built from an env id (for a pack: the model's run seeds).
     :param dump_logs: Dump the logger (print the table of values) after evaluations, as SB3 does after each.
     :param verbose: Verbosity level: 1 prints a one-line summary with each dump, 0 nothing.
-    :param warn: Warn when the eval env is not wrapped with a Monitor.
+    :param warn: Warn (once) when the eval env is not wrapped with a Monitor.
     :param run_log_paths: For a pack: one folder per run for its ``evaluations.npz`` (instead of ``log_path``).
     :param log_freq: Dump the logger and print the summary every this many evaluations (1: after each, as SB3).
         The paper's protocol evaluates 40,000 times: a table each time is unreadable.
@@ -227,6 +228,7 @@ class MultiAgentEvalCallback(EvalCallback):
         if save_freq < 1:
             raise ValueError(f"save_freq must be >= 1, got {save_freq}")
         self.save_freq = save_freq
+        self._monitor_checked = False
         self._saved_evaluations = 0  # evaluations held at the last write of the files
         self.dump_logs = dump_logs
         self.run_log_paths = run_log_paths
@@ -236,9 +238,6 @@ class MultiAgentEvalCallback(EvalCallback):
         self.records: list[dict[str, list]] = []
         self.run_episodes: np.ndarray | None = None  # training episodes completed, per run
         self.run_training_collisions: np.ndarray | None = None
-        self._env_episodes: list[list[dict[str, Any]]] = []
-        self._running_returns: np.ndarray | None = None
-        self._running_collisions: np.ndarray | None = None
         self._new_records(1)
 
     def _new_records(self, n_runs: int) -> None:
@@ -364,39 +363,66 @@ class MultiAgentEvalCallback(EvalCallback):
         for callback, counters in zip(mine, saved):
             callback.__dict__.update(counters)
 
-    # --- per step of an evaluation (evaluate_policy's callback) ----------------------------------------------------
+    # --- one evaluation -------------------------------------------------------------------------------------------
 
-    def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
-        i, info = locals_["i"], locals_["info"]
-        agent_rewards = info.get("agent_rewards")
-        if self._running_returns is None:
-            n_agents = 0 if agent_rewards is None else len(agent_rewards)
-            self._running_returns = np.zeros((self.eval_env.num_envs, n_agents))
-            self._running_collisions = np.zeros(self.eval_env.num_envs, dtype=np.int64)
-            self._running_team = np.zeros(self.eval_env.num_envs)
-            self._running_length = np.zeros(self.eval_env.num_envs, dtype=np.int64)
-        if agent_rewards is not None:
-            self._running_returns[i] += agent_rewards
-        assert self._running_collisions is not None
-        self._running_collisions[i] += _collisions(info)
-        self._running_team[i] += locals_["reward"]
-        self._running_length[i] += 1
-        if locals_["done"]:
-            episode = info.get("episode")
-            self._env_episodes[i].append(
-                {
-                    "return": float(episode["r"]) if episode else float(self._running_team[i]),
-                    "length": int(episode["l"]) if episode else int(self._running_length[i]),
-                    "success": info.get("is_success"),
-                    "final_success": _final_success(info),
-                    "agent_returns": self._running_returns[i].copy(),
-                    "collisions": int(self._running_collisions[i]),
-                }
-            )
-            self._running_returns[i] = 0.0
-            self._running_collisions[i] = 0
-            self._running_team[i] = 0.0
-            self._running_length[i] = 0
+    def _run_episodes(self) -> list[list[dict[str, Any]]]:
+        """
+        The episodes of one evaluation, per eval env, run as SB3's ``evaluate_policy`` runs them: every env steps
+        until each has completed its share ``(n + i) // n_envs`` of the ``n`` episodes (for a pack ``n`` is
+        ``n_eval_episodes`` per run), with the policy's actions for all envs at once, and an episode's return is
+        the Monitor's where the env has one.
+        """
+        env = self.eval_env
+        n_envs = env.num_envs
+        total = self.n_eval_episodes * self.n_runs
+        targets = np.array([(total + i) // n_envs for i in range(n_envs)])
+        counts = np.zeros(n_envs, dtype=np.int64)
+        episodes: list[list[dict[str, Any]]] = [[] for _ in range(n_envs)]
+        team, length = np.zeros(n_envs), np.zeros(n_envs, dtype=np.int64)
+        collisions = np.zeros(n_envs, dtype=np.int64)
+        returns: np.ndarray | None = None  # (n_envs, n_agents) each agent's return so far
+        actor_actions = getattr(self.model, "_actor_actions", None)  # MADDPG: predict() without its per-call checks
+        if self.warn and not self._monitor_checked:
+            self._monitor_checked = True
+            if not (is_vecenv_wrapped(env, VecMonitor) or env.env_is_wrapped(Monitor)[0]):
+                warnings.warn(
+                    "The evaluation env is not wrapped with a Monitor: returns and lengths are counted by the callback "
+                    "and may differ from the env's own if other wrappers change rewards or episode lengths",
+                    UserWarning,
+                    stacklevel=2,
+                )
+        observations = env.reset()
+        while (counts < targets).any():
+            if actor_actions is not None and not isinstance(observations, dict):
+                actions = actor_actions(observations)
+            else:
+                actions, _ = self.model.predict(observations, deterministic=self.deterministic)  # type: ignore[arg-type]
+            observations, rewards, dones, infos = env.step(actions)
+            for i in np.flatnonzero(counts < targets):
+                info = infos[i]
+                agent_rewards = info.get("agent_rewards")
+                if returns is None:
+                    returns = np.zeros((n_envs, 0 if agent_rewards is None else len(agent_rewards)))
+                if agent_rewards is not None:
+                    returns[i] += agent_rewards
+                collisions[i] += _collisions(info)
+                team[i] += rewards[i]
+                length[i] += 1
+                if dones[i]:
+                    episode = info.get("episode")
+                    episodes[i].append(
+                        {
+                            "return": float(episode["r"]) if episode else float(team[i]),
+                            "length": int(episode["l"]) if episode else int(length[i]),
+                            "success": info.get("is_success"),
+                            "final_success": _final_success(info),
+                            "agent_returns": returns[i].copy(),
+                            "collisions": int(collisions[i]),
+                        }
+                    )
+                    returns[i], collisions[i], team[i], length[i] = 0.0, 0, 0.0, 0
+                    counts[i] += 1
+        return episodes
 
     # --- per training step -------------------------------------------------------------------------------------------
 
@@ -421,22 +447,12 @@ class MultiAgentEvalCallback(EvalCallback):
         if self.model.get_vec_normalize_env() is not None:
             sync_envs_normalization(self.training_env, self.eval_env)
         n_envs = self.eval_env.num_envs
-        self._env_episodes = [[] for _ in range(n_envs)]
-        self._running_returns = None
-        evaluate_policy(
-            self.model,
-            self.eval_env,
-            n_eval_episodes=self.n_eval_episodes * self.n_runs,
-            deterministic=self.deterministic,
-            return_episode_rewards=True,
-            warn=self.warn,
-            callback=self._log_success_callback,
-        )
+        env_episodes = self._run_episodes()
         explorations = getattr(self.model, "explorations", [None] * self.n_runs)
         per_run = n_envs // self.n_runs
         run_rates, run_returns = [], []
         for run, record in enumerate(self.records):
-            episodes = [ep for env in range(run * per_run, (run + 1) * per_run) for ep in self._env_episodes[env]]
+            episodes = [ep for env in range(run * per_run, (run + 1) * per_run) for ep in env_episodes[env]]
             successes = [ep["success"] for ep in episodes if ep["success"] is not None]
             exploration = explorations[run]
             record["timesteps"].append(self.num_timesteps // self.n_runs)

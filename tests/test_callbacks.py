@@ -122,6 +122,29 @@ def test_evaluation_file_written_less_often_as_it_grows(tmp_path, monkeypatch):
     assert held[-1] == 120 and len(np.load(tmp_path / "evaluations.npz")["timesteps"]) == 120
 
 
+@pytest.mark.parametrize("monitored", [True, False])
+def test_evaluation_runs_the_episodes_evaluate_policy_runs(monitored):
+    """Episode returns and lengths as SB3's evaluate_policy gives them, with episodes of different lengths and more
+    episodes than envs (env i runs (n + i) // n_envs of them)."""
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
+
+    def env():
+        vec = DummyVecEnv([lambda: gym.make(NAV, max_episode_steps=7), lambda: gym.make(NAV, max_episode_steps=13)])
+        vec.seed(7)
+        return VecMonitor(vec) if monitored else vec
+
+    model = make_model(NAV)
+    callback = MultiAgentEvalCallback(env(), n_eval_episodes=5, eval_freq=1, verbose=0, warn=False, dump_logs=False)
+    model.learn(1, callback=callback)  # one evaluation
+    expected_returns, expected_lengths = evaluate_policy(model, env(), n_eval_episodes=5, return_episode_rewards=True,
+                                                         warn=False)
+    returns, lengths = callback.evaluations_results[0], callback.evaluations_length[0]
+    assert len(returns) == 5 and len(set(lengths)) > 1
+    # (evaluate_policy lists episodes as they end, the callback env by env)
+    assert sorted(zip(returns, lengths)) == sorted(zip(np.float64(expected_returns), expected_lengths))
+
+
 def test_training_collisions_counted():
     class CountCollisions(BaseCallback):
         total = 0

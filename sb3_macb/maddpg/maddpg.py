@@ -343,16 +343,12 @@ class MADDPG(TD3):
                 unscaled = self._one_hot(unscaled)
         else:
             assert self._last_obs is not None, "self._last_obs was not set"
-            # what predict() computes for a VecEnv's Box observations, without its checks and conversions per step
-            self.policy.set_training_mode(False)
             gumbel = None
             if discrete is not None:  # discrete agents explore by sampling their policy (Gumbel-max)
                 dim = self.agent_layout.action_dim  # type: ignore[union-attr]
                 gumbel = th.as_tensor(np.stack([self._run_rngs[e // step].gumbel(size=dim) for e in range(n_envs)]),
                                       dtype=th.float32, device=self.device)  # fmt: skip
-            with th.no_grad():
-                obs = th.as_tensor(self._last_obs, device=self.device).float()  # type: ignore[arg-type]
-                unscaled = self.policy.unscale_action(self.actor(obs, gumbel=gumbel).cpu().numpy())
+            unscaled = self._actor_actions(self._last_obs, gumbel)  # type: ignore[arg-type]
         scaled = self.policy.scale_action(unscaled)
         if action_noise is not None:
             noise = self._draw_noise(action_noise, n_envs)
@@ -360,6 +356,19 @@ class MADDPG(TD3):
                 noise[:, discrete] = 0.0  # action noise is for continuous agents
             scaled = np.clip(scaled + noise, -1, 1)
         return self.policy.unscale_action(scaled), scaled
+
+    def _actor_actions(self, observations: np.ndarray, gumbel: th.Tensor | None = None) -> np.ndarray:
+        """
+        The actors' actions in the env's bounds for a batch of joint observations, as ``predict`` returns them for a
+        VecEnv's Box observations (MADDPG's actors are deterministic), without its checks and conversions per call.
+
+        :param observations: (n_envs, obs_dim), for a pack the runs' envs one run after another.
+        :param gumbel: Gumbel noise for discrete agents' sampled actions (None: their greedy actions).
+        """
+        self.policy.set_training_mode(False)
+        with th.no_grad():
+            obs = th.as_tensor(observations, device=self.device).float()
+            return self.policy.unscale_action(self.actor(obs, gumbel=gumbel).cpu().numpy())
 
     def _one_hot(self, actions: np.ndarray) -> np.ndarray:
         """(n, action_dim) actions in the env's bounds with each discrete agent's slice made one-hot at its argmax."""
