@@ -9,6 +9,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, EvalCallback
+from stable_baselines3.common.logger import HumanOutputFormat
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, is_vecenv_wrapped, sync_envs_normalization
 
@@ -166,7 +167,8 @@ class MultiAgentEvalCallback(EvalCallback):
     :param warn: Warn (once) when the eval env is not wrapped with a Monitor.
     :param run_log_paths: For a pack: one folder per run for its ``evaluations.npz`` (instead of ``log_path``).
     :param log_freq: Dump the logger and print the summary every this many evaluations (1: after each, as SB3).
-        The paper's protocol evaluates 40,000 times: a table each time is unreadable.
+        The paper's protocol evaluates 40,000 times: a table each time is unreadable. The logger's files
+        (TensorBoard, CSV, JSON) get every evaluation's values at its step, whatever ``log_freq`` and ``dump_logs``.
     :param monitor: Also write each run's training episodes (return, length, wall-clock seconds since the run
         started) to ``monitor.csv`` beside its ``evaluations.npz``, in SB3's Monitor format (``load_results`` and
         rl_zoo3's plots read it). A run that continues from a checkpoint (:meth:`set_state`) first cuts the file back
@@ -479,27 +481,34 @@ class MultiAgentEvalCallback(EvalCallback):
         self.last_mean_reward = mean_reward
         self.last_success_rate = success_rate
         last = [record for record in self.records]
-        self.logger.record("eval/mean_reward", mean_reward)
-        self.logger.record("eval/mean_ep_length", float(np.mean([np.mean(r["ep_lengths"][-1]) for r in last])))
+        scalars: dict[str, float | int] = {"eval/mean_reward": mean_reward}
+        scalars["eval/mean_ep_length"] = float(np.mean([np.mean(r["ep_lengths"][-1]) for r in last]))
         if success_rate is not None:
-            self.logger.record("eval/success_rate", success_rate)
+            scalars["eval/success_rate"] = success_rate
             finals = [np.mean(r["final_successes"][-1]) for r in last if r["final_successes"][-1]]
             if finals:
-                self.logger.record("eval/final_success_rate", float(np.mean(finals)))
+                scalars["eval/final_success_rate"] = float(np.mean(finals))
         agent_returns = [r["agent_returns"][-1] for r in last if len(r["agent_returns"][-1])]
         if agent_returns:
             returns = np.mean(np.concatenate(agent_returns), axis=0)
             layout = getattr(self.model, "agent_layout", None)
             names = layout.agents if layout is not None else [str(i) for i in range(len(returns))]
             for name, value in zip(names, returns):
-                self.logger.record(f"eval/return_{name}", float(value))
-        self.logger.record("eval/collisions", float(np.mean([np.mean(r["collisions"][-1]) for r in last])))
-        self.logger.record("rollout/collisions_total", self.training_collisions)
+                scalars[f"eval/return_{name}"] = float(value)
+        scalars["eval/collisions"] = float(np.mean([np.mean(r["collisions"][-1]) for r in last]))
+        scalars["rollout/collisions_total"] = self.training_collisions
         with_macb = [e for e in explorations if e is not None]
         if with_macb:
-            self.logger.record("exploration/num_codes", float(np.mean([e.num_codes for e in with_macb])))
-            self.logger.record("exploration/count1_percent", 100.0 * float(np.mean([e.count1_fraction for e in with_macb])))
+            scalars["exploration/num_codes"] = float(np.mean([e.num_codes for e in with_macb]))
+            scalars["exploration/count1_percent"] = 100.0 * float(np.mean([e.count1_fraction for e in with_macb]))
         report = len(self.evaluations_timesteps) % self.log_freq == 0
+        dump = self.dump_logs and report
+        if not dump:  # the files (TensorBoard, CSV, JSON) get every evaluation at its step; a later dump only the console
+            for output in self.logger.output_formats:
+                if not isinstance(output, HumanOutputFormat):
+                    output.write(scalars, dict.fromkeys(scalars), self.num_timesteps)
+        for key, value in scalars.items():
+            self.logger.record(key, value, exclude=None if dump else ("tensorboard", "json", "csv"))
         if self.verbose >= 1 and report:
             rate = "n/a" if success_rate is None else f"{success_rate:.2f}"
             runs = "" if self.n_runs == 1 else f" (mean of {self.n_runs} runs)"
@@ -508,7 +517,7 @@ class MultiAgentEvalCallback(EvalCallback):
                 f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}{window}, "
                 f"return {mean_reward:.2f}{runs}"
             )
-        if self.dump_logs and report:
+        if dump:
             self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
             self.logger.dump(self.num_timesteps)
 

@@ -1,3 +1,5 @@
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -143,6 +145,24 @@ def test_evaluation_runs_the_episodes_evaluate_policy_runs(monitored):
     assert len(returns) == 5 and len(set(lengths)) > 1
     # (evaluate_policy lists episodes as they end, the callback env by env)
     assert sorted(zip(returns, lengths)) == sorted(zip(np.float64(expected_returns), expected_lengths))
+
+
+def test_logger_files_get_every_evaluation_and_the_console_every_log_freq(tmp_path, capsys):
+    import json
+
+    from stable_baselines3.common.logger import configure
+
+    model = make_model(NAV)
+    model.set_logger(configure(str(tmp_path), ["stdout", "json"]))
+    callback = MultiAgentEvalCallback(NAV, n_eval_episodes=2, eval_freq=10, log_freq=4, seed=2, verbose=0)
+    model.learn(120, callback=callback, log_interval=None)  # 12 evaluations; no dumps of SB3's own
+    rows = [json.loads(line) for line in (tmp_path / "progress.json").read_text().splitlines()]
+    evaluated = [row for row in rows if "eval/success_rate" in row]
+    assert len(evaluated) == 12
+    assert [row["eval/mean_reward"] for row in evaluated] == pytest.approx(
+        [float(np.mean(r)) for r in callback.evaluations_results])
+    # the console table: evaluations 4, 8 and 12
+    assert len(re.findall(r"\|\s+success_rate\s", capsys.readouterr().out)) == 3
 
 
 def test_training_collisions_counted():

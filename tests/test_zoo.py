@@ -638,3 +638,15 @@ def test_save_freq_keeps_the_model_every_n_steps(tmp_path):
     from stable_baselines3.common.monitor import load_results  # and the training episodes, as rl_zoo3 keeps them
 
     assert list(load_results(str(folder))["l"]) == [20] * 5
+
+
+def test_tensorboard_folder_is_named_like_the_run_and_gets_every_evaluation(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tb = tmp_path / "tb"
+    folder = Path(run_train(tmp_path, "-n", "200", "--variant", "fast", "-tb", str(tb)))
+    assert [p.name for p in tb.iterdir()] == [folder.name]
+    events = EventAccumulator(str(tb / folder.name)).Reload()
+    assert [e.step for e in events.Scalars("eval/success_rate")] == list(range(50, 201, 50))  # (--eval-freq 50)
+    other = Path(run_train(tmp_path, "-n", "100", "--variant", "fast", "-tb", str(tb)))  # the next run, its own folder
+    assert other.name != folder.name and sorted(p.name for p in tb.iterdir()) == sorted([folder.name, other.name])

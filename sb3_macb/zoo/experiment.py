@@ -35,6 +35,7 @@ import numpy as np
 import torch as th
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import configure
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from torch import nn
 
@@ -684,7 +685,8 @@ class Experiment:
         the latest). Each is the size of one model of the pack (26 MB for three 400-300 runs).
     :param verbose: 1 prints a line per checkpoint and at the end.
     :param progress_bar: Show SB3's progress bar.
-    :param tensorboard_log: Folder for TensorBoard logs (None: none).
+    :param tensorboard_log: Folder for TensorBoard logs (None: none). The experiment logs into the subfolder named
+        like its own folder (``<tensorboard_log>/<basename of folder>``), and a resumed one continues there.
     :param log_interval: Print SB3's training table every this many training episodes (None: never).
     :param eval_log_freq: Print an evaluation summary every this many evaluations (1: SB3's table after each;
         None: nothing).
@@ -890,6 +892,10 @@ class Experiment:
             self._remove_leftovers()
             self._write_experiment_file(done=False)
         self.model, self.eval_callback = model, callback
+        if self.tensorboard_log:  # (SB3 would number its own folders, and continue a resumed run in the latest one)
+            formats = ["tensorboard"] if self.log_interval is None else ["stdout", "tensorboard"]
+            name = os.path.basename(os.path.normpath(self.folder))
+            model.set_logger(configure(os.path.join(self.tensorboard_log, name), formats))
         self._started = time.time()
         total = self.config.n_timesteps * self.n_runs
         model.learn(

@@ -114,7 +114,8 @@ def make_parser() -> argparse.ArgumentParser:
     add("--num-threads", type=int, default=1, help="torch threads")
     add("--device", default="auto", help="torch device (auto, cpu, cuda)")
     add("-tb", "--tensorboard-log", default=None,
-        help="TensorBoard folder (default: LOG_FOLDER/tensorboard when tensorboard is installed; '' for none)")  # fmt: skip
+        help="TensorBoard folder (default: LOG_FOLDER/tensorboard when tensorboard is installed; '' for none); "
+             "a run logs into its subfolder named like the run's folder, e.g. ENV_1, every evaluation included")  # fmt: skip
     add("--log-interval", type=int, default=100, help="SB3's training table every this many training episodes")
     add("--verbose", type=int, default=1, help="0: quiet; 1: a summary every 100 evaluations; 2: a table after each")
     add("-P", "--progress", action="store_true", help="progress bar (the default)")
@@ -269,7 +270,9 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     if args.seed < 0:
         args.seed = int(np.random.randint(2**31 - 1))
     tensorboard_log = args.tensorboard_log
-    if tensorboard_log is None:
+    if tensorboard_log is None and args.optimize:
+        tensorboard_log = ""  # (rl_zoo3 logs no trial to TensorBoard)
+    elif tensorboard_log is None:
         try:
             import tensorboard  # noqa: F401
 
