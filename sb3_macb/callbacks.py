@@ -4,6 +4,7 @@ import json
 import os
 import time
 import warnings
+from contextlib import suppress
 from typing import Any
 
 import gymnasium as gym
@@ -14,6 +15,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor, is_vecenv_wrapped, sync_envs_normalization
 
 from sb3_macb.common import evaluations
+from sb3_macb.common.atomic import AtomicWriteError
 from sb3_macb.common.private_apis import set_next_reset_seeds
 
 
@@ -311,14 +313,20 @@ class MultiAgentEvalCallback(EvalCallback):
         if path is None:
             return
         assert self._monitor_start is not None
-        new = not os.path.exists(path) or os.path.getsize(path) == 0
-        with open(path, "a") as file:
-            if new:
-                header = {"t_start": self._monitor_start, **({"env_id": self._env_id} if self._env_id else {})}
-                file.write("#" + json.dumps(header) + "\n")
-                file.write("r,l,t\n")
-            seconds = round(time.time() - self._monitor_start, 6)
-            file.write(f"{round(float(episode['r']), 6)},{int(episode['l'])},{seconds}\n")
+        size = os.path.getsize(path) if os.path.exists(path) else 0
+        text = ""
+        if size == 0:
+            header = {"t_start": self._monitor_start, **({"env_id": self._env_id} if self._env_id else {})}
+            text = "#" + json.dumps(header) + "\nr,l,t\n"
+        seconds = round(time.time() - self._monitor_start, 6)
+        text += f"{round(float(episode['r']), 6)},{int(episode['l'])},{seconds}\n"
+        try:
+            with open(path, "a") as file:
+                file.write(text)
+        except OSError as exc:  # e.g. a full disk: the file is cut back to its last complete line
+            with suppress(OSError):
+                os.truncate(path, size)
+            raise AtomicWriteError(path, exc) from None
 
     # --- checkpoints: what the callback has recorded so far -------------------------------------------------------
 

@@ -1,3 +1,4 @@
+import os
 import re
 
 import gymnasium as gym
@@ -182,3 +183,36 @@ def test_training_collisions_counted():
     model.learn(400, callback=CallbackList([counter, callback]))
     assert callback.training_collisions == counter.total
     assert callback.evaluations_training_collisions[-1] == counter.total
+
+
+def test_a_full_disk_while_writing_the_monitor_file_is_one_error_naming_it(tmp_path, monkeypatch):
+    import errno
+
+    import sb3_macb.callbacks as callbacks_module
+    from sb3_macb.common.atomic import AtomicWriteError
+
+    class FullDisk:
+        def __init__(self, path, mode):
+            self.file = open(path, mode)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.file.close()
+
+        def write(self, text):
+            self.file.write(text[: len(text) // 2])  # part of the line reaches the file, then the disk is full
+            self.file.flush()
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    callback = MultiAgentEvalCallback(NAV, n_eval_episodes=1, eval_freq=1000, log_path=str(tmp_path), monitor=True,
+                                      verbose=0)
+    model = make_model(NAV)
+    model.learn(40, callback=callback)  # two episodes written
+    written = (tmp_path / "monitor.csv").read_text()
+    assert written.count("\n") == 4
+    monkeypatch.setattr(callbacks_module, "open", FullDisk, raising=False)
+    with pytest.raises(AtomicWriteError, match=r"cannot write .*monitor.csv: No space left on device"):
+        model.learn(20, callback=callback, reset_num_timesteps=False)
+    assert (tmp_path / "monitor.csv").read_text() == written  # no part of a line left behind
