@@ -527,6 +527,19 @@ def test_optimize_keeps_its_trials_in_a_journal_file(tmp_path):
     assert [t.state for t in study.trials] == [TrialState.COMPLETE] * 2
 
 
+def test_optimize_warns_when_parallel_jobs_share_sqlite(tmp_path, capsys, monkeypatch):
+    import rl_zoo3.exp_manager
+
+    monkeypatch.setattr(rl_zoo3.exp_manager.ExperimentManager, "hyperparameters_optimization", lambda self: None)
+    common = ["--env", COMM, "-n", "40", "-f", str(tmp_path), "--seed", "0", "--variant", "fast", "--optimize",
+              "--verbose", "0", "--no-progress"]  # fmt: skip
+    train([*common, "--n-jobs", "2", "--storage", f"sqlite:///{tmp_path / 'o.db'}"])
+    assert "2 jobs share the SQLite storage" in capsys.readouterr().err
+    train([*common, "--n-jobs", "2", "--storage", str(tmp_path / "o.log")])
+    train([*common, "--storage", f"sqlite:///{tmp_path / 'o.db'}"])
+    assert "SQLite" not in capsys.readouterr().err
+
+
 def test_rl_zoo3_keys_the_runs_cannot_restore_are_refused_before_anything_is_written(tmp_path):
     from sb3_macb.zoo.experiment import ExperimentError
 

@@ -331,6 +331,10 @@ def _optimize(args: argparse.Namespace, hyperparams: dict[str, Any], env_kwargs:
     from rl_zoo3.exp_manager import ExperimentManager
 
     check_values({**hyperparams, "n_timesteps": n_timesteps}, "--optimize")
+    if args.n_jobs > 1 and (args.storage or "").startswith("sqlite"):
+        print(f"Warning: {args.n_jobs} jobs share the SQLite storage {args.storage}, which Optuna advises against for "
+              f"parallel workers (locked-database errors); --storage PATH.log keeps the study in a journal file that "
+              f"they can share", file=sys.stderr)  # fmt: skip
     resolved = dict(hyperparams)
     if not args.unsafe_eval:
         # rl_zoo3 evals normalize/monitor_kwargs strings and imports and calls env wrappers: refused, as in plain runs
