@@ -5,7 +5,7 @@ evaluations in 8e5 steps) costs beside training, in two parts:
 1. One evaluation of a pack of 8 runs at 64-64 on sparse Communicative Navigation (80 episodes as one batch), in ms:
    this checkout, and with ``--baseline DIR`` a second checkout, run in turn (A B A B ...) in fresh processes.
 2. Writing ``evaluations.npz`` over a whole run, under two schedules: a write every ``save_freq`` (100)
-   evaluations, as ``MultiAgentEvalCallback`` did up to 0.11.0, and a write every ``save_freq`` evaluations or every
+   evaluations, as ``MultiAgentEvalCallback`` did before 0.12.0, and a write every ``save_freq`` evaluations or every
    tenth of those held where that is more, as it does now. A write's time is measured at several sizes on records
    shaped like the callback's (one entry per evaluation, values drawn at random), fitted with a line in the number
    of evaluations held, and summed over each schedule's writes.
