@@ -147,7 +147,9 @@ class MultiAgentReplayBuffer(ReplayBuffer):
 
     # --- checkpoints: the filled part of the arrays, not the whole preallocated buffer --------------------------
 
-    _array_names = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts", "agent_rewards")
+    _array_names: tuple[str, ...] = (
+        "observations", "next_observations", "actions", "rewards", "dones", "timeouts", "agent_rewards"
+    )  # fmt: skip
 
     def state_arrays(self) -> dict[str, np.ndarray]:
         """The stored transitions (the filled rows only) and the write position, for a checkpoint."""
@@ -314,7 +316,8 @@ class MACBReplayBuffer(MultiAgentReplayBuffer):
             if exploration is not None:
                 keys = self.hash_keys[batch_inds[run], env_inds[run], : exploration.n_tables]
                 if getattr(exploration, "uses_observations", False):  # (RND: the minibatch's observations)
-                    run_bonus = exploration.bonus(keys, observations=self.observations[batch_inds[run], env_inds[run]])
+                    rnd: Any = exploration
+                    run_bonus = rnd.bonus(keys, observations=self.observations[batch_inds[run], env_inds[run]])
                 else:
                     run_bonus = exploration.bonus(keys)  # (batch, 1): shared by all agents; (batch, n_agents): local
                 bonus[run] = run_bonus

@@ -297,9 +297,9 @@ class MultiAgentEvalCallback(EvalCallback):
             if self._monitor_start is None:
                 self._monitor_start = time.time()
             for run in range(self.n_runs):  # a new run starts its file afresh; a resumed one cuts it back
-                path = self._monitor_file(run)
-                if path is not None and os.path.exists(path):
-                    with open(path, "r+b") as file:
+                monitor_file = self._monitor_file(run)
+                if monitor_file is not None and os.path.exists(monitor_file):
+                    with open(monitor_file, "r+b") as file:
                         file.truncate(0 if self._monitor_sizes is None else self._monitor_sizes[run])
             self._monitor_ready = True
 
@@ -446,9 +446,9 @@ class MultiAgentEvalCallback(EvalCallback):
             if dones is not None:
                 self.run_episodes += np.asarray(dones, dtype=np.int64).reshape(self.n_runs, per_run).sum(axis=1)
                 if self.monitor:
-                    for e in np.flatnonzero(dones):
-                        if "episode" in infos[e]:  # (VecMonitor's record of the episode)
-                            self._write_monitor(int(e) // per_run, infos[e]["episode"])
+                    for done in np.flatnonzero(dones):
+                        if "episode" in infos[done]:  # (VecMonitor's record of the episode)
+                            self._write_monitor(int(done) // per_run, infos[done]["episode"])
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
         return self._evaluate()
@@ -514,7 +514,7 @@ class MultiAgentEvalCallback(EvalCallback):
         if not dump:  # the files (TensorBoard, CSV, JSON) get every evaluation at its step; a later dump only the console
             for output in self.logger.output_formats:
                 if not isinstance(output, HumanOutputFormat):
-                    output.write(scalars, dict.fromkeys(scalars), self.num_timesteps)
+                    output.write(scalars, {key: () for key in scalars}, self.num_timesteps)
         for key, value in scalars.items():
             self.logger.record(key, value, exclude=None if dump else ("tensorboard", "json", "csv"))
         if self.verbose >= 1 and report:

@@ -72,7 +72,7 @@ def remove_leftovers(folder: str | os.PathLike) -> list[str]:
 
     removed = []
     with suppress(FileNotFoundError, NotADirectoryError):
-        for entry in os.scandir(folder):
+        for entry in os.scandir(os.fspath(folder)):
             if entry.name.startswith(".") and entry.name.endswith(TMP_SUFFIX):
                 if entry.is_dir(follow_symlinks=False):
                     shutil.rmtree(entry.path, ignore_errors=True)

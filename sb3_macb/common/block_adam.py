@@ -60,7 +60,7 @@ class BlockAdam(th.optim.Adam):
         super().load_state_dict(state_dict)
 
     @th.no_grad()
-    def step(self, closure=None):  # type: ignore[no-untyped-def]
+    def step(self, closure=None):
         loss = None
         if closure is not None:
             with th.enable_grad():

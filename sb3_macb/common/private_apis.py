@@ -54,7 +54,7 @@ def _adam_tensors(seed: int) -> list[list[th.Tensor]]:
 
 
 def _fused_adam_check() -> bool:
-    settings = dict(amsgrad=False, lr=1e-3, beta1=0.9, beta2=0.999, weight_decay=0.0, eps=1e-8, maximize=False)
+    settings: dict[str, Any] = dict(amsgrad=False, lr=1e-3, beta1=0.9, beta2=0.999, weight_decay=0.0, eps=1e-8, maximize=False)
     p, g, m, v, step = _adam_tensors(0)
     v = [t.abs() for t in v]
     th._fused_adam_(p, g, m, v, [], step, grad_scale=None, found_inf=None, **settings)

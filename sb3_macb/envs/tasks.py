@@ -10,7 +10,7 @@ vector in [0, 1]. Every agent's info carries, per step, ``success`` (the success
 and, for navigation, ``collisions`` (agent pairs overlapping now) and ``episode_collisions``.
 """
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -254,7 +254,7 @@ class TaskEnv(SimpleEnv, EzPickle):
             continuous_actions=True,
             dynamic_rescaling=True,
         )
-        self.metadata = {**self.metadata, "name": name}
+        self.metadata: dict[str, Any] = {**self.metadata, "name": name}
         for agent in self.world.agents:
             if agent.movable:
                 space = spaces.Box(-1.0, 1.0, (self.world.dim_p,), dtype=np.float32)
@@ -279,7 +279,7 @@ class TaskEnv(SimpleEnv, EzPickle):
                 agent.action.u = np.zeros(world.dim_p)
             agent.action.c = np.zeros(world.dim_c) if agent.silent else action[-world.dim_c :].copy()
         world.step()
-        scenario: TaskScenario = self.scenario  # type: ignore[assignment]
+        scenario: TaskScenario = self.scenario
         reward = float(scenario.shared_reward(world))
         success = scenario.success(world)
         collisions = scenario.collisions(world)
@@ -317,7 +317,8 @@ class TaskParallelEnv(ParallelEnv):
         self.max_cycles = max_cycles
         self.possible_agents = list(self.task_env.possible_agents)
         self.agents: list[str] = []
-        self._bounds = [(self.action_space(a).low, self.action_space(a).high) for a in self.possible_agents]
+        boxes = [cast(spaces.Box, self.action_space(a)) for a in self.possible_agents]  # (continuous agents)
+        self._bounds = [(box.low, box.high) for box in boxes]
         self.steps = 0
 
     def observation_space(self, agent: str) -> spaces.Space:

@@ -98,7 +98,7 @@ class TaskVecEnv(VecEnv):
         n_entities = 2 + self.n_landmarks  # agents first, then landmarks (mpe2's entity order)
         self.pos = np.zeros((n, n_entities, 2))
         self.vel = np.zeros((n, 2, 2))
-        self.comm = np.zeros((n, 3))  # the speaker's message (communication)
+        self.comm: np.ndarray = np.zeros((n, 3))  # the speaker's message (communication)
         self.goal = np.zeros(n, dtype=np.int64)
         self.steps = np.zeros(n, dtype=np.int64)
         self.success_ever = np.zeros(n, dtype=bool)
@@ -230,7 +230,7 @@ class TaskVecEnv(VecEnv):
         pass
 
     def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
-        return [getattr(self, attr_name)] * len(self._get_indices(indices))
+        return [getattr(self, attr_name)] * len(list(self._get_indices(indices)))
 
     def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
         setattr(self, attr_name, value)
@@ -239,7 +239,7 @@ class TaskVecEnv(VecEnv):
         raise AttributeError(f"TaskVecEnv has no per-env method {method_name!r}")
 
     def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
-        return [False] * len(self._get_indices(indices))
+        return [False] * len(list(self._get_indices(indices)))
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         return [None] * self.num_envs

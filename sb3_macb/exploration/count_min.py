@@ -11,7 +11,8 @@ def primes_from(start: int, n: int) -> list[int]:
             return m == 2
         return all(m % d for d in range(3, int(m**0.5) + 1, 2))
 
-    primes, m = [], max(int(start), 2)
+    primes: list[int] = []
+    m = max(int(start), 2)
     while len(primes) < n:
         if is_prime(m):
             primes.append(m)
@@ -73,10 +74,10 @@ class CountMinSketch:
             return
         if len(keys) == 1:  # one transition per step: plain Python over the rows is several times faster
             key, counts = int(keys[0]), self.counts
-            cells = [key % w + o for w, o in self._rows]
-            values = [int(counts[c]) for c in cells]
+            slots = [key % w + o for w, o in self._rows]
+            values = [int(counts[c]) for c in slots]
             before = min(values)
-            for c, v in zip(cells, values):
+            for c, v in zip(slots, values):
                 counts[c] = v + 1
             self.num_codes += before == 0
             self.num_count1 += (before == 0) - (before == 1)

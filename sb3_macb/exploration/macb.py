@@ -220,7 +220,7 @@ class MACB:
         if self.is_setup and self._layout == layout:
             return
         if self.seed is None:
-            self.seed = int(seed) if seed is not None else int(np.random.SeedSequence().entropy % (2**31))
+            self.seed = int(seed) if seed is not None else int(np.random.SeedSequence().entropy) % (2**31)  # type: ignore[arg-type]
         rng = np.random.default_rng(self.seed)
         self._layout = layout
         if self.scope == "local":

@@ -143,7 +143,7 @@ class RND:
         if self.is_setup and self._layout == layout:
             return
         if self.seed is None:
-            self.seed = int(seed) if seed is not None else int(np.random.SeedSequence().entropy % (2**31))
+            self.seed = int(seed) if seed is not None else int(np.random.SeedSequence().entropy) % (2**31)  # type: ignore[arg-type]
         generator = th.Generator().manual_seed(int(self.seed))
         self._layout = layout
         dims = list(layout.obs_dims) if self.scope == "local" else [layout.obs_dim]

@@ -111,7 +111,7 @@ def enjoy(argv: list[str]) -> list[dict[str, Any]]:
         env.seed(args.seed)
         obs = env.reset()
         while len(records) < args.n_episodes:
-            action, _ = model.predict(obs, deterministic=True)
+            action, _ = model.predict(obs, deterministic=True)  # type: ignore[arg-type]
             obs, _, dones, infos = env.step(action)
             returns += infos[0]["agent_rewards"]
             if dones[0]:

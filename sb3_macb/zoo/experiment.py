@@ -663,7 +663,7 @@ class _Checkpointer(BaseCallback):
         self.freq = freq
 
     def _on_rollout_start(self) -> None:
-        steps = self.model.num_timesteps // self.model.n_runs
+        steps = self.model.num_timesteps // self.model.n_runs  # type: ignore[attr-defined]
         if self.freq and steps // self.freq > self.experiment.last_checkpoint // self.freq:
             self.experiment.save_checkpoint()
 
@@ -806,6 +806,7 @@ class Experiment:
         explorations = [exploration_with_schedules(r.hyperparams.get("exploration"), r.folder) for r in runs]
         kwargs.pop("exploration", None)
         env = make_task_vec_env(cfg.env_id, self.n_runs * self.n_envs, cfg.env_kwargs)
+        assert env.action_space.shape is not None
         action_dim = int(np.prod(env.action_space.shape))
         noises = [_action_noise(r.hyperparams, action_dim) for r in runs]
         kwargs["learning_starts"] = int(kwargs.get("learning_starts", 100)) * self.n_runs  # counted over all envs
@@ -839,7 +840,7 @@ class Experiment:
         self.user_callbacks = make_callbacks(
             self.config.runs[0].hyperparams, self.config.unsafe_eval, self.config.runs[0].folder
         )
-        stoppers = [c for c in self.user_callbacks if isinstance(c, _SuccessRateStop)]
+        stoppers: list[BaseCallback] = [c for c in self.user_callbacks if isinstance(c, _SuccessRateStop)]
         self.user_callbacks = [c for c in self.user_callbacks if c not in stoppers]
         after_eval = None if not stoppers else stoppers[0] if len(stoppers) == 1 else CallbackList(stoppers)
         if stoppers and self.config.eval_freq == 0:
@@ -920,7 +921,7 @@ class Experiment:
         assert self.model is not None and self.eval_callback is not None
         self.eval_callback.save_evaluations()
         wall = self._elapsed_before + time.time() - self._started
-        buffer_size_per_run = int(self.model.replay_buffer.buffer_size_per_run)  # type: ignore[attr-defined]
+        buffer_size_per_run = int(self.model.replay_buffer.buffer_size_per_run)
         for k, run in enumerate(self.config.runs):
             solo = self.model if self.n_runs == 1 else self.model.get_run(k)
             solo.save(os.path.join(run.folder, "model.zip"))
@@ -999,7 +1000,7 @@ class Experiment:
         os.makedirs(tmp)
         model.save(os.path.join(tmp, "model.zip"))
         with atomic_write(os.path.join(tmp, "buffer.npz")) as file:
-            np.savez(file, **model.replay_buffer.state_arrays())  # type: ignore[attr-defined]
+            np.savez(file, **model.replay_buffer.state_arrays())  # type: ignore[arg-type]
         state = {
             "sb3_macb": sb3_macb.__version__,
             "config": self.config.comparable(),
@@ -1100,7 +1101,7 @@ def load_checkpoint(
     buffer_file = os.path.join(folder, "buffer.npz")
     try:
         with np.load(buffer_file) as arrays:
-            model.replay_buffer.load_state_arrays(arrays)  # type: ignore[attr-defined]
+            model.replay_buffer.load_state_arrays(arrays)
     except Exception as exc:  # noqa: BLE001
         raise ExperimentError(f"{buffer_file} is missing or damaged ({type(exc).__name__}: {exc})") from None
     return model, state

@@ -320,7 +320,9 @@ def _enqueue_once(storage: optuna.storages.RDBStorage, study: optuna.Study, name
 
 def point_states(study: optuna.Study, points: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """For each grid point: its trials' states, failures and the last error message."""
-    states = {point_key(p): {"point": p, "active": 0, "complete": [], "failed": 0, "error": ""} for p in points}
+    states: dict[str, dict[str, Any]] = {
+        point_key(p): {"point": p, "active": 0, "complete": [], "failed": 0, "error": ""} for p in points
+    }
     for trial in study.get_trials(deepcopy=False):
         entry = states.get(trial.user_attrs.get("point", ""))
         if entry is None:

@@ -55,7 +55,7 @@ def register_with_rl_zoo3() -> None:
 
     utils.ALGOS["maddpg"] = MADDPG
     hyperparams_opt.HYPERPARAMS_SAMPLER["maddpg"] = sample_maddpg_params
-    hyperparams_opt.HYPERPARAMS_CONVERTER["maddpg"] = convert_maddpg_params
+    hyperparams_opt.HYPERPARAMS_CONVERTER["maddpg"] = convert_maddpg_params  # type: ignore[assignment]
 
 
 def sample_maddpg_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
@@ -283,7 +283,8 @@ def train(argv: list[str] | None = None, overrides: dict[str, Any] | None = None
     if args.device != "auto":
         hyperparams.setdefault("device", args.device)
     if args.optimize:
-        return _optimize(args, hyperparams, env_kwargs, n_timesteps, tensorboard_log)
+        _optimize(args, hyperparams, env_kwargs, n_timesteps, tensorboard_log)
+        return None
 
     folder = args.resume or _new_run_folder(args.log_folder, args.algo, args.env)
     run.seed, run.folder = args.seed, folder
@@ -370,11 +371,11 @@ def _optimize(args: argparse.Namespace, hyperparams: dict[str, Any], env_kwargs:
     import rl_zoo3.exp_manager
 
     original = rl_zoo3.exp_manager.TrialEvalCallback
-    rl_zoo3.exp_manager.TrialEvalCallback = _success_trial_callback(original)
+    rl_zoo3.exp_manager.TrialEvalCallback = _success_trial_callback(original)  # type: ignore[misc,assignment]
     try:
         manager.hyperparameters_optimization()
     finally:
-        rl_zoo3.exp_manager.TrialEvalCallback = original
+        rl_zoo3.exp_manager.TrialEvalCallback = original  # type: ignore[misc]
     return None
 
 
@@ -384,7 +385,7 @@ def _success_trial_callback(base: type) -> type:
     the evaluation's success rate where the episodes report ``is_success``, else the mean reward as in rl_zoo3.
     """
 
-    class SuccessTrialEvalCallback(base):  # type: ignore[valid-type,misc]
+    class SuccessTrialEvalCallback(base):
         @property
         def last_mean_reward(self) -> float:
             successes = getattr(self, "_is_success_buffer", None)  # (the latest evaluation's episodes)
