@@ -14,7 +14,6 @@ what the joint env's do (``agent_rewards``, ``agent_infos``, ``is_success``, ``T
     venv = make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", n_envs=10, env_kwargs={"reward": "sparse"})
 """
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -23,6 +22,7 @@ from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 from sb3_macb.common.private_apis import next_reset_seeds
+from sb3_macb.envs.batched import BatchedVecEnv
 from sb3_macb.envs.joint_env import AgentLayout
 from sb3_macb.envs.task_constants import (
     COMMUNICATION,
@@ -39,7 +39,7 @@ from sb3_macb.envs.task_constants import (
 TASK_IDS = ("sb3_macb/TwoAgentNavigation-v0", "sb3_macb/CommunicativeNavigation-v0")
 
 
-class TaskVecEnv(VecEnv):
+class TaskVecEnv(BatchedVecEnv):
     """
     ``n_envs`` copies of one of the paper's tasks, stepped together.
 
@@ -223,26 +223,6 @@ class TaskVecEnv(VecEnv):
         else:
             rewards = -(distance**2)
         return rewards, distance <= self.success_radius, np.zeros(self.num_envs, dtype=np.int64)
-
-    # --- VecEnv's other methods --------------------------------------------------------------------------------------
-
-    def close(self) -> None:
-        pass
-
-    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
-        return [getattr(self, attr_name)] * len(list(self._get_indices(indices)))
-
-    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
-        raise AttributeError(f"TaskVecEnv has no per-env method {method_name!r}")
-
-    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
-        return [False] * len(list(self._get_indices(indices)))
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None] * self.num_envs
 
 
 def make_task_vec_env(env_id: str, n_envs: int, env_kwargs: dict[str, Any] | None = None) -> VecEnv:

@@ -17,12 +17,13 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
+from sb3_macb.envs.batched import BatchedVecEnv
 from sb3_macb.envs.joint_env import AgentLayout
 
 TEAM_REWARDS = ("sum", "mean")
 
 
-class VmasVecEnv(VecEnv):
+class VmasVecEnv(BatchedVecEnv):
     """
     One VMAS environment of ``n_envs`` parallel copies as an SB3 ``VecEnv``: the joint observation (each agent's,
     concatenated in VMAS's agent order), the joint continuous action (split back per agent), the team reward (sum or
@@ -100,24 +101,6 @@ class VmasVecEnv(VecEnv):
                 obs[i] = self._joint([o[i] for o in self.env.reset_at(i)])
             infos.append(info)
         return obs, team.astype(np.float32), dones, infos
-
-    def close(self) -> None:
-        pass
-
-    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
-        return [getattr(self, attr_name)] * len(list(self._get_indices(indices)))
-
-    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
-        raise AttributeError(f"VmasVecEnv has no per-env method {method_name!r}")
-
-    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
-        return [False] * len(list(self._get_indices(indices)))
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None] * self.num_envs
 
 
 def make_vmas_env(

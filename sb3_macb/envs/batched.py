@@ -1,0 +1,33 @@
+"""The SB3 ``VecEnv`` methods shared by the package's batched envs, whose envs are rows of one object."""
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+
+class BatchedVecEnv(VecEnv):
+    """
+    Base of a ``VecEnv`` that simulates all its envs as one batch (one object, not one env object per index): an
+    attribute is the batch's for every index, there are no per-env methods or wrappers, nothing to close and no
+    images. Subclasses implement ``reset``, ``step_async`` and ``step_wait``.
+    """
+
+    def close(self) -> None:
+        pass
+
+    def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
+        return [getattr(self, attr_name)] * len(list(self._get_indices(indices)))
+
+    def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any) -> list[Any]:
+        raise AttributeError(f"{type(self).__name__} has no per-env method {method_name!r}")
+
+    def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
+        return [False] * len(list(self._get_indices(indices)))
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None] * self.num_envs
