@@ -103,7 +103,7 @@ class TaskVecEnv(BatchedVecEnv):
         self.steps = np.zeros(n, dtype=np.int64)
         self.success_ever = np.zeros(n, dtype=bool)
         self.episode_collisions = np.zeros(n, dtype=np.int64)
-        self._actions: np.ndarray | None = None
+        self._actions = None
 
     # --- episodes ------------------------------------------------------------------------------------------------
 
@@ -145,17 +145,8 @@ class TaskVecEnv(BatchedVecEnv):
 
     # --- stepping --------------------------------------------------------------------------------------------------
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions)
-
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
-        assert self._actions is not None, "step_async was not called"
-        actions = np.asarray(self._actions, dtype=np.float32).reshape(self.num_envs, -1)
-        if actions.shape[1] != self.agent_layout.action_dim:
-            raise ValueError(f"Expected joint actions of size {self.agent_layout.action_dim}, got {actions.shape[1]}")
-        if not np.all(np.isfinite(actions)):
-            raise ValueError("NaN or infinite value in the actions")
-        actions = np.clip(actions.astype(np.float64), self._low, self._high)
+        actions = np.clip(self._joint_actions().astype(np.float64), self._low, self._high)
         pos, vel = self.pos, self.vel
         if self.task == "navigation":
             force = FORCE_SCALE * actions.reshape(self.num_envs, 2, 2)

@@ -62,7 +62,7 @@ class VmasVecEnv(BatchedVecEnv):
         self.render_mode = None
         super().__init__(env.num_envs, obs_space, spaces.Box(low, high, dtype=np.float32))
         self._splits = np.cumsum(self.agent_layout.action_dims)[:-1]
-        self._actions: np.ndarray | None = None
+        self._actions = None
 
     def _joint(self, per_agent: Sequence[Any]) -> np.ndarray:
         return np.concatenate([o.detach().cpu().numpy() for o in per_agent], axis=-1).astype(np.float32)
@@ -75,16 +75,10 @@ class VmasVecEnv(BatchedVecEnv):
         self._reset_options()
         return self._joint(self.env.reset())
 
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = np.asarray(actions)
-
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         import torch as th
 
-        assert self._actions is not None, "step_async was not called"
-        actions = np.asarray(self._actions, dtype=np.float32).reshape(self.num_envs, -1)
-        if actions.shape[1] != self.agent_layout.action_dim:
-            raise ValueError(f"Expected joint actions of size {self.agent_layout.action_dim}, got {actions.shape[1]}")
+        actions = self._joint_actions()
         per_agent = [th.as_tensor(a, device=self.env.device) for a in np.split(actions, self._splits, axis=1)]
         observations, rewards, terminated, truncated, _ = self.env.step(per_agent)
         obs = self._joint(observations)
