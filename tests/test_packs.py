@@ -176,6 +176,36 @@ def test_block_adam_updates_blocks_as_adam_updates_whole_tensors():
     assert float(again.state_dict()["state"][0]["step"]) == 20.0
 
 
+def test_block_adam_is_bit_identical_to_one_fused_adam_per_block():
+    # each block is stepped as a tensor of its own: a separate fused Adam on a copy of the block computes the same bits,
+    # through steps where a parameter has no gradient, a new parameter group's state, and a reload of the state
+    bounds = [(0, 3), (3, 5), (5, 6)]
+    gen = th.Generator().manual_seed(1)
+    weights = th.nn.Parameter(th.randn(6, 17, 9, generator=gen))
+    bias = th.nn.Parameter(th.randn(6, 17, generator=gen))
+    optimizer = BlockAdam([weights, bias], blocks=[bounds, bounds], lr=3e-2)
+    copies = [[th.nn.Parameter(p.detach()[a:b].clone()) for a, b in bounds] for p in (weights, bias)]
+    singles = [[th.optim.Adam([c], lr=3e-2, fused=True) for c in row] for row in copies]
+    for step in range(12):
+        grads = [th.randn(p.shape, generator=gen) for p in (weights, bias)]
+        with_grad = (0,) if step in (3, 4) else (0, 1)  # the bias has no gradient at steps 3 and 4
+        for i, p in enumerate((weights, bias)):
+            p.grad = grads[i].clone() if i in with_grad else None
+            for (a, b), c, opt in zip(bounds, copies[i], singles[i]):
+                if i in with_grad:
+                    c.grad = grads[i][a:b].clone()
+                    opt.step()
+        optimizer.step()
+        if step == 6:  # a new optimizer that loads the state goes on with the same bits
+            state = optimizer.state_dict()
+            optimizer = BlockAdam([weights, bias], blocks=[bounds, bounds], lr=3e-2)
+            optimizer.load_state_dict(state)
+        for i, p in enumerate((weights, bias)):
+            for (a, b), c in zip(bounds, copies[i]):
+                assert th.equal(p.detach()[a:b], c.detach()), (step, i, a)
+    assert float(optimizer.state[weights]["step"]) == 12.0 and float(optimizer.state[bias]["step"]) == 10.0
+
+
 def test_a_pack_with_discrete_agents_is_bit_identical_to_its_solo_runs():
     from stable_baselines3.common.env_util import make_vec_env
     from toy_envs import Rendezvous
