@@ -264,6 +264,16 @@ class MultiAgentEvalCallback(EvalCallback):
         self.evaluations_count1 = first["count1_fraction"]
         self.evaluations_training_collisions = first["training_collisions"]
 
+    def _per_run(self, count: int) -> int:
+        """One run's share of a count over all the model's envs (the model's own count when it is no pack)."""
+        pack = getattr(self.model, "pack", None)
+        return count if pack is None else pack.run_steps(count)
+
+    @property
+    def run_timesteps(self) -> int:
+        """Steps of each run so far (the model's ``num_timesteps`` divided between the runs of a pack)."""
+        return self._per_run(self.num_timesteps)
+
     @property
     def training_collisions(self) -> int:
         """Collisions during training so far (summed over the runs of a pack)."""
@@ -288,7 +298,8 @@ class MultiAgentEvalCallback(EvalCallback):
             if self.run_log_paths is not None and len(self.run_log_paths) != n_runs:
                 raise ValueError(f"run_log_paths needs one folder per run ({n_runs}), got {len(self.run_log_paths)}")
         if self.run_episodes is None:
-            self.run_episodes = np.full(n_runs, int(getattr(self.model, "_episode_num", 0)) // n_runs, dtype=np.int64)
+            episodes = int(getattr(self.model, "_episode_num", 0))  # (counted over all envs, as SB3 counts)
+            self.run_episodes = np.full(n_runs, self._per_run(episodes), dtype=np.int64)
             self.run_training_collisions = np.zeros(n_runs, dtype=np.int64)
         super()._init_callback()
         for path in self.run_log_paths or []:
@@ -465,7 +476,7 @@ class MultiAgentEvalCallback(EvalCallback):
             episodes = [ep for env in range(run * per_run, (run + 1) * per_run) for ep in env_episodes[env]]
             successes = [ep["success"] for ep in episodes if ep["success"] is not None]
             exploration = explorations[run]
-            record["timesteps"].append(self.num_timesteps // self.n_runs)
+            record["timesteps"].append(self.run_timesteps)
             record["results"].append([ep["return"] for ep in episodes])
             record["ep_lengths"].append([ep["length"] for ep in episodes])
             record["successes"].append(successes)
@@ -521,10 +532,7 @@ class MultiAgentEvalCallback(EvalCallback):
             rate = "n/a" if success_rate is None else f"{success_rate:.2f}"
             runs = "" if self.n_runs == 1 else f" (mean of {self.n_runs} runs)"
             window = "" if self.log_freq == 1 else f", mean of the last {self.log_freq} evaluations {self._recent_rate():.2f}"
-            print(
-                f"Eval num_timesteps={self.num_timesteps // self.n_runs}, success rate {rate}{window}, "
-                f"return {mean_reward:.2f}{runs}"
-            )
+            print(f"Eval num_timesteps={self.run_timesteps}, success rate {rate}{window}, return {mean_reward:.2f}{runs}")
         if dump:
             self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
             self.logger.dump(self.num_timesteps)

@@ -351,3 +351,22 @@ def test_a_pack_of_rnd_runs_is_bit_identical_to_its_solo_runs():
             assert th.equal(a, b), k
         for name, tensor in solo.exploration.state_dict().items():
             assert th.equal(run.exploration.state_dict()[name], tensor), (k, name)
+
+
+def test_a_pack_saved_by_sb3_macb_0_12_loads():
+    # tests/data/pack_v0_12.zip: a pack of two runs (MACB k=16 in run 0, none in run 1, 8-unit layers), 120 steps,
+    # saved by sb3_macb 0.12, which held the runs' seeds, generators and explorations as separate model attributes
+    expected = np.load("tests/data/pack_v0_12_expected.npz")
+    model = MADDPG.load("tests/data/pack_v0_12.zip")
+    assert model.n_runs == 2 and model.run_seeds == [3, 4] and model.pack.n_runs == 2
+    assert not {"n_runs", "run_seeds", "explorations", "_run_rngs"} & set(vars(model))
+    assert model.num_timesteps == expected["num_timesteps"] and model.run_timesteps == expected["num_timesteps"] // 2
+    assert np.array_equal(model.predict(expected["obs"], deterministic=True)[0], expected["actions"])
+    assert model.explorations[0].num_codes == expected["num_codes"] > 0 and model.explorations[1] is None
+    assert model.explorations[0].total_count == expected["total_count"]
+    run = model.get_run(0)
+    assert run.exploration.num_codes == expected["num_codes"] and run._n_updates == expected["n_updates"]
+    assert np.array_equal(run.pack.rngs[0].random(3), expected["rng_draw"])  # the generator's state was carried
+    model.set_env(make_task_vec_env(COMM, 2))
+    model.learn(20, reset_num_timesteps=False)
+    assert model.explorations[0].total_count == expected["total_count"] + 10

@@ -1,4 +1,5 @@
 import copy
+import inspect
 import io
 import os
 import pathlib
@@ -24,9 +25,9 @@ from sb3_macb.buffers import MACBReplayBuffer, MultiAgentReplayBuffer, RunSample
 from sb3_macb.common.atomic import atomic_write, with_suffix
 from sb3_macb.common.private_apis import lerp_, set_next_reset_seeds
 from sb3_macb.envs.joint_env import AgentLayout, is_pettingzoo_env, make_joint_env
-from sb3_macb.exploration.estimators import make_exploration
 from sb3_macb.exploration.macb import MACB
 from sb3_macb.exploration.rnd import RND
+from sb3_macb.maddpg.pack import Pack
 from sb3_macb.maddpg.policies import MADDPGPolicy, MlpPolicy, MultiAgentActor, MultiAgentCritic, _block_mask
 
 SelfMADDPG = TypeVar("SelfMADDPG", bound="MADDPG")
@@ -128,6 +129,32 @@ class MADDPG(TD3):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    # the constructor's settings a run of a pack keeps as it is when handed out (get_run), held under their own names
+    _RUN_SETTINGS: ClassVar[tuple[str, ...]] = (
+        "learning_rate",
+        "buffer_size",
+        "batch_size",
+        "tau",
+        "gamma",
+        "train_freq",
+        "gradient_steps",
+        "replay_buffer_kwargs",
+        "optimize_memory_usage",
+        "policy_delay",
+        "target_policy_noise",
+        "target_noise_clip",
+        "centralized_critic",
+        "tensorboard_log",
+        "policy_kwargs",
+        "verbose",
+        "share_parameters",
+        "share_critics",
+        "flush_denormal",
+        "preactivation_reg",
+        "intrinsic_critic",
+        "intrinsic_gamma",
+        "intrinsic_coef",
+    )
     policy: MADDPGPolicy
     actor: MultiAgentActor
     actor_target: MultiAgentActor
@@ -203,16 +230,11 @@ class MADDPG(TD3):
             raise TypeError(
                 f"replay_buffer_class must derive from sb3_macb.buffers.MultiAgentReplayBuffer, got {replay_buffer_class}"
             )
-        if isinstance(n_runs, bool) or not isinstance(n_runs, (int, np.integer)) or n_runs < 1:
-            raise ValueError(f"n_runs must be an integer >= 1, got {n_runs!r}")
-        if run_seeds is not None and len(run_seeds) != n_runs:
-            raise ValueError(f"run_seeds needs one seed per run ({n_runs}), got {run_seeds}")
-        if run_seeds is None and seed is not None:
+        if run_seeds is None and seed is not None and isinstance(n_runs, (int, np.integer)) and n_runs >= 1:
             run_seeds = [int(seed) + k for k in range(n_runs)]
-        self.n_runs = int(n_runs)
-        self.run_seeds = None if run_seeds is None else [int(s) for s in run_seeds]
-        if seed is None and run_seeds is not None:
-            seed = self.run_seeds[0]  # type: ignore[index]
+        self.pack = Pack(n_runs, run_seeds, exploration)
+        if seed is None and self.pack.seeds is not None:
+            seed = self.pack.seeds[0]
         self.agent_layout: AgentLayout | None = None
         self.centralized_critic = centralized_critic
         if not (
@@ -229,26 +251,15 @@ class MADDPG(TD3):
             [list(g) for g in share_parameters] if isinstance(share_parameters, (list, tuple)) else share_parameters
         )
         self.share_critics = bool(share_critics)
-        if isinstance(exploration, (list, tuple)):
-            # the same MACB object given for several runs ([MACB(...)] * K) is copied: every run counts in its own table
-            per_run, seen = [], set()
-            for setting in exploration:
-                per_run.append(copy.deepcopy(setting) if isinstance(setting, (MACB, RND)) and id(setting) in seen else setting)
-                seen.add(id(setting))
-        else:  # one setting for every run: each run gets its own copy (and its own count table)
-            per_run = [exploration] + [copy.deepcopy(exploration) for _ in range(n_runs - 1)]
-        if len(per_run) != n_runs:
-            raise ValueError(f"exploration: expected one setting per run ({n_runs}), got {len(per_run)}")
-        self.explorations: list[MACB | None] = [make_exploration(e) for e in per_run]  # type: ignore[misc]
-        if intrinsic_critic and all(e is None for e in self.explorations):
+        if intrinsic_critic and not self.pack.explores:
             raise ValueError("intrinsic_critic=True learns an exploration bonus: give exploration=MACB(...) too")
         self.intrinsic_critic = bool(intrinsic_critic)
         self.intrinsic_gamma = float(intrinsic_gamma)
         self.intrinsic_coef = float(intrinsic_coef)
         if isinstance(action_noise, (list, tuple)) and len(action_noise) != n_runs:
             raise ValueError(f"action_noise: expected one per run ({n_runs}), got {len(action_noise)}")
-        # (the MACB objects' settings travel in the saved data; their matrices and count tables as a state dict)
-        self._run_rngs: list[np.random.Generator] | None = None
+        # (the pack, with its explorations' settings, travels in the saved data; their matrices and count tables
+        # as a state dict)
         run_noises = action_noise if isinstance(action_noise, (list, tuple)) else None
         if run_noises is not None:
             action_noise = run_noises[0]
@@ -281,37 +292,48 @@ class MADDPG(TD3):
         self.flush_denormal = flush_denormal
         self.preactivation_reg = float(preactivation_reg)
         if run_noises is not None and self.env is not None:
-            self.action_noise = self._per_env_noise(list(run_noises))
+            self.action_noise = self.pack.env_noise(list(run_noises), self.n_envs)
         if _init_setup_model:
             self._setup_model()
 
     # --- runs of a pack -------------------------------------------------------------------------------------------
 
     @property
-    def exploration(self) -> MACB | None:
-        """The MACB of an ordinary model (None without one); packs have one per run in ``explorations``."""
+    def n_runs(self) -> int:
+        """The number of runs trained together (1 for an ordinary model)."""
+        return self.pack.n_runs
+
+    @property
+    def run_seeds(self) -> list[int] | None:
+        """The seed of each run (None: unseeded)."""
+        return self.pack.seeds
+
+    @property
+    def explorations(self) -> list[MACB | RND | None]:
+        """The exploration of each run (None where a run has none), owned by :attr:`pack`."""
+        return self.pack.explorations
+
+    @property
+    def exploration(self) -> MACB | RND | None:
+        """The exploration of an ordinary model (None without one); packs have one per run in ``explorations``."""
         if self.n_runs != 1:
             raise AttributeError("A pack has one MACB per run: use model.explorations[k] (or model.get_run(k).exploration)")
-        return self.explorations[0]
+        return self.pack.explorations[0]
+
+    @property
+    def _exploration_pack(self) -> Pack:
+        # the name under which a pack's exploration states are saved in the model's zip (as in sb3_macb <= 0.12)
+        return self.pack
+
+    @property
+    def run_timesteps(self) -> int:
+        """Steps of each run so far (``num_timesteps``, which SB3 counts over all envs, divided between the runs)."""
+        return self.pack.run_steps(self.num_timesteps)
 
     @property
     def envs_per_run(self) -> int:
-        return self.n_envs // self.n_runs
-
-    def _per_env_noise(self, run_noises: list[ActionNoise]) -> ActionNoise:
-        """One noise process per env, run ``k``'s envs copying ``run_noises[k]``."""
-        per_env = [copy.deepcopy(run_noises[e // self.envs_per_run]) for e in range(self.n_envs)]
-        if self.n_envs == 1:
-            return per_env[0]
-        vectorized = VectorizedActionNoise(per_env[0], self.n_envs)
-        vectorized.noises = per_env
-        return vectorized
-
-    def _env_seeds(self) -> list[int] | None:
-        if self.run_seeds is None:
-            return None
-        step = self.envs_per_run
-        return [self.run_seeds[e // step] + e % step for e in range(self.n_envs)]
+        """How many envs each run steps."""
+        return self.pack.envs_per_run(self.n_envs)
 
     def set_random_seed(self, seed: int | None = None) -> None:
         """
@@ -319,7 +341,7 @@ class MADDPG(TD3):
         ``k`` is seeded ``run_seeds[k] + j`` (for one run, ``seed + j`` as SB3 seeds it).
         """
         super().set_random_seed(seed)
-        seeds = self._env_seeds()
+        seeds = self.pack.env_seeds(self.n_envs) if self.env is not None else None
         if seeds is not None and self.env is not None:
             venv: VecEnv = self.env
             while isinstance(venv, VecEnvWrapper):
@@ -333,12 +355,11 @@ class MADDPG(TD3):
         SB3's action sampling (random warm-up actions, then the actors' actions plus noise, clipped to the bounds),
         with every random draw made by the env's run's own generator.
         """
-        assert self._run_rngs is not None
-        step = self.envs_per_run
+        rngs = self.pack.env_rngs(n_envs)
         discrete = self._discrete_mask
         if self.num_timesteps < learning_starts:
             low, high = self.action_space.low, self.action_space.high  # type: ignore[attr-defined]
-            unscaled = np.stack([self._run_rngs[e // step].uniform(low, high) for e in range(n_envs)]).astype(np.float32)
+            unscaled = np.stack([rng.uniform(low, high) for rng in rngs]).astype(np.float32)
             if discrete is not None:  # a discrete agent's warm-up action: one-hot of a uniform random choice
                 unscaled = self._one_hot(unscaled)
         else:
@@ -346,7 +367,7 @@ class MADDPG(TD3):
             gumbel = None
             if discrete is not None:  # discrete agents explore by sampling their policy (Gumbel-max)
                 dim = self.agent_layout.action_dim  # type: ignore[union-attr]
-                gumbel = th.as_tensor(np.stack([self._run_rngs[e // step].gumbel(size=dim) for e in range(n_envs)]),
+                gumbel = th.as_tensor(np.stack([rng.gumbel(size=dim) for rng in rngs]),
                                       dtype=th.float32, device=self.device)  # fmt: skip
             unscaled = self._actor_actions(self._last_obs, gumbel)  # type: ignore[arg-type]
         scaled = self.policy.scale_action(unscaled)
@@ -384,11 +405,9 @@ class MADDPG(TD3):
 
     def _draw_noise(self, action_noise: ActionNoise, n_envs: int) -> np.ndarray:
         """One noise vector per env, Gaussian and Ornstein-Uhlenbeck noise drawn from the env's run's generator."""
-        assert self._run_rngs is not None
         noises = action_noise.noises if isinstance(action_noise, VectorizedActionNoise) else [action_noise] * n_envs
         draws = []
-        for e, noise in enumerate(noises):
-            rng = self._run_rngs[e // self.envs_per_run]
+        for rng, noise in zip(self.pack.env_rngs(n_envs), noises):
             if isinstance(noise, NormalActionNoise):
                 draws.append(rng.normal(noise._mu, noise._sigma))
             elif isinstance(noise, OrnsteinUhlenbeckActionNoise):
@@ -438,24 +457,15 @@ class MADDPG(TD3):
         if self.n_steps != 1:
             raise ValueError("MADDPG does not support n-step returns (n_steps must be 1)")
         layout = self.agent_layout
-        if "exploration" in self.__dict__:  # a model saved by sb3_macb 0.1 held one MACB as "exploration"
-            self.explorations = [self.__dict__.pop("exploration")]
-        if self.n_envs % self.n_runs:
-            raise ValueError(
-                f"A pack of {self.n_runs} runs needs a number of envs divisible by {self.n_runs}, got {self.n_envs}"
-            )
+        self._adopt_saved_runs()
+        self.pack.envs_per_run(self.n_envs)  # (a clear error when the envs cannot be split between the runs)
         self._convert_train_freq()  # (SB3's, idempotent: checked here, before the replay buffer is allocated)
         if self.n_runs > 1 and self.train_freq.unit != TrainFrequencyUnit.STEP:
             raise ValueError("train_freq: a pack counts it in steps ((N, 'step')); SB3 counts episodes over all envs")
         buffer_extra: dict[str, Any] = {"n_agents": layout.n_agents, "n_runs": self.n_runs}
-        seeds = self.run_seeds or [None] * self.n_runs
-        for exploration, seed in zip(self.explorations, seeds):
-            if exploration is not None:
-                exploration.setup(layout, seed=seed)
-        if self._run_rngs is None:  # (a loaded model brings its generators' states)
-            self._run_rngs = [np.random.default_rng(seed) for seed in seeds]
-        if any(e is not None for e in self.explorations):
-            buffer_extra["exploration"] = list(self.explorations)
+        self.pack.setup(layout)
+        if self.pack.explores:
+            buffer_extra["exploration"] = self.pack.explorations  # (the pack's own list: the buffer holds no copy)
             if self.replay_buffer_class is None:
                 self.replay_buffer_class = MACBReplayBuffer
             elif not issubclass(self.replay_buffer_class, MACBReplayBuffer):
@@ -483,7 +493,6 @@ class MADDPG(TD3):
         finally:
             self.policy_kwargs, self.replay_buffer_kwargs = user_policy_kwargs, user_buffer_kwargs
 
-        self._exploration_pack = _ExplorationPack(self.explorations)
         # Agent i's slice of the joint action, to put its actor's action into its own critic's input
         masks = _block_mask(layout.action_slices, layout.action_dim)[:, None, :]
         self._action_masks = th.as_tensor(masks, device=self.device)
@@ -503,6 +512,18 @@ class MADDPG(TD3):
         if self.actor.has_discrete:
             weights = weights.masked_fill(self.actor.discrete_mask, 0.0)
         self._preactivation_weights = weights
+
+    def _adopt_saved_runs(self) -> None:
+        """Build :attr:`pack` from the attributes a model saved by sb3_macb <= 0.12 holds instead of one."""
+        saved = self.__dict__
+        if not {"n_runs", "run_seeds", "explorations", "exploration", "_run_rngs"} & set(saved):
+            return
+        explorations = saved.pop("explorations", None)
+        if "exploration" in saved:  # sb3_macb 0.1 held one MACB as "exploration"
+            explorations = [saved.pop("exploration")]
+        n_runs = saved.pop("n_runs", 1)
+        self.pack = Pack(n_runs, saved.pop("run_seeds", None), explorations)
+        self.pack.rngs = saved.pop("_run_rngs", None)
 
     def _share_groups(self, layout: AgentLayout) -> list[list[int]] | None:
         """
@@ -554,7 +575,7 @@ class MADDPG(TD3):
             n_tables = max((e.n_tables for e in self.explorations if e is not None), default=-1)
             if buffer.hash_keys.shape[-1] != n_tables:
                 raise ValueError("This replay buffer was saved by a model using MACB with other settings than this model's")
-            buffer.explorations = list(self.explorations)
+            buffer.explorations = self.pack.explorations
 
     def dump_logs(self) -> None:
         explorations = [e for e in self.explorations if e is not None]
@@ -566,19 +587,9 @@ class MADDPG(TD3):
                 self.logger.record("exploration/mean_bonus", mean_bonus)
         super().dump_logs()
 
-    def _per_run_draws(self, distribution: str, shape: tuple[int, ...]) -> th.Tensor:
-        """
-        One float32 array of ``shape`` per run from that run's own generator (``distribution``: a method of
-        ``np.random.Generator``), stacked to ``(n_runs, *shape)`` on the model's device: a packed run draws what its
-        solo run draws.
-        """
-        assert self._run_rngs is not None
-        draws = np.stack([getattr(rng, distribution)(size=shape) for rng in self._run_rngs])
-        return th.as_tensor(draws, dtype=th.float32, device=self.device)
-
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         if self.gradient_steps < 0:  # SB3 passes the steps of all envs; each run of a pack does its own run's count
-            gradient_steps //= self.n_runs
+            gradient_steps = self.pack.run_steps(gradient_steps)
         self.policy.set_training_mode(True)
         critic_int = self.policy.critic_int
         optimizers = [self.actor.optimizer, self.critic.optimizer]
@@ -586,13 +597,14 @@ class MADDPG(TD3):
         for exploration in self.explorations:  # a scheduled beta follows training as the learning rate does
             if exploration is not None:
                 exploration.progress_remaining = self._current_progress_remaining
-        assert self._run_rngs is not None
+        rngs = self.pack.rngs
+        assert rngs is not None
         actor_losses, critic_losses, int_losses = [], [], []
         for _ in range(gradient_steps):
             self._n_updates += 1
             # one minibatch per run, each from its own envs with its own generator: (n_runs, batch, ...)
             data = self.replay_buffer.sample_runs(
-                batch_size, self._run_rngs, env=self._vec_normalize_env, separate_bonus=critic_int is not None
+                batch_size, rngs, env=self._vec_normalize_env, separate_bonus=critic_int is not None
             )
             target_q, target_int = self._td_targets(data)
             critic_losses.append(self._regress(self.critic, data, target_q))
@@ -622,7 +634,7 @@ class MADDPG(TD3):
         with th.no_grad():
             next_actions = self.actor_target(data.next_observations)
             if self.target_policy_noise > 0:
-                noise = self._per_run_draws("standard_normal", next_actions.shape[1:]).mul_(self.target_policy_noise)
+                noise = self.pack.draws("standard_normal", next_actions.shape[1:], self.device).mul_(self.target_policy_noise)
                 if self.actor.has_discrete:
                     noise = noise.masked_fill(self.actor.discrete_mask, 0.0)
                 next_actions = (next_actions + noise.clamp_(-self.target_noise_clip, self.target_noise_clip)).clamp_(-1, 1)
@@ -662,7 +674,7 @@ class MADDPG(TD3):
         """
         gumbel = None
         if self.actor.has_discrete:
-            gumbel = self._per_run_draws("gumbel", (batch_size, self.agent_layout.action_dim))  # type: ignore[union-attr]
+            gumbel = self.pack.draws("gumbel", (batch_size, self.agent_layout.action_dim), self.device)  # type: ignore[union-attr]
         raw = self.actor.raw(data.observations)  # (n_runs, batch, action_dim), logits for discrete agents
         pi = self.actor.squash(raw, gumbel, straight_through=gumbel is not None).unsqueeze(1)
         actions = data.actions.unsqueeze(1)
@@ -768,7 +780,6 @@ class MADDPG(TD3):
             "_actor_target_params",
             "_critic_params",
             "_critic_target_params",
-            "_exploration_pack",
         ]
 
     # --- acting in a raw PettingZoo loop ----------------------------------------------------------------------------
@@ -810,42 +821,37 @@ class MADDPG(TD3):
         :param k: The run, 0 to ``n_runs - 1``.
         :param env: The env to attach (optional, as for :meth:`load`).
         """
-        if not 0 <= k < self.n_runs:
-            raise IndexError(f"run {k} out of range for a pack of {self.n_runs}")
-        data = {
-            name: value
-            for name, value in self.__dict__.items()
-            if name not in set(self._excluded_save_params()) | {"actor", "critic", "actor_target", "critic_target"}
-        }
-        data = copy.deepcopy({name: value for name, value in data.items() if name not in ("explorations", "_run_rngs")})
-        solo = type(self)(policy=self.policy_class, env=None, device=self.device, _init_setup_model=False)
-        per_run = self.n_runs
-        data.update(
+        run = self.pack.run(k, self.agent_layout)  # (an IndexError for a run out of range)
+        defaults = inspect.signature(MADDPG.__init__).parameters  # (for settings a model saved by an older version lacks)
+        settings = {name: copy.deepcopy(getattr(self, name, defaults[name].default)) for name in self._RUN_SETTINGS}
+        solo = type(self)(
+            policy=self.policy_class,
+            env=None,
+            device=self.device,
+            seed=None if run.seeds is None else run.seeds[0],
             n_runs=1,
-            n_envs=self.envs_per_run,
-            run_seeds=None if self.run_seeds is None else [self.run_seeds[k]],
-            seed=None if self.run_seeds is None else self.run_seeds[k],
-            explorations=[copy.deepcopy(self.explorations[k])],
-            _run_rngs=[copy.deepcopy(self._run_rngs[k])],  # type: ignore[index]
-            num_timesteps=self.num_timesteps // per_run,
-            learning_starts=self.learning_starts // per_run,
-            _total_timesteps=self._total_timesteps // per_run,
-            _num_timesteps_at_start=self._num_timesteps_at_start // per_run,
-            _episode_num=self._episode_num // per_run,
-            _last_obs=None,
-            _last_original_obs=None,
-            _last_episode_starts=None,
-            action_noise=None if self.action_noise is None else self._run_noise(k),
-            replay_buffer=None,
+            run_seeds=run.seeds,
+            exploration=run.explorations[0],
+            action_noise=None if self.action_noise is None else self.pack.run_noise(self.action_noise, k, self.n_envs),
+            learning_starts=self.pack.run_steps(self.learning_starts),
             # the package's own buffers are chosen again from the run's exploration; a user's class is kept
             replay_buffer_class=None
             if self.replay_buffer_class in (MACBReplayBuffer, MultiAgentReplayBuffer)
             else self.replay_buffer_class,
+            stats_window_size=self._stats_window_size,
+            _init_setup_model=False,
+            **settings,
         )
-        solo.__dict__.update(data)
+        solo.pack = run  # (its generator's state too)
+        solo.observation_space, solo.action_space = self.observation_space, self.action_space
+        solo.n_envs, solo.agent_layout = self.envs_per_run, self.agent_layout
         solo._setup_model()
-        if self.explorations[k] is not None:  # the deep copy lost the tables; carry them over
-            solo.explorations[0].load_state_dict(self.explorations[k].state_dict())  # type: ignore[union-attr]
+        solo.num_timesteps = self.pack.run_steps(self.num_timesteps)
+        solo._total_timesteps = self.pack.run_steps(self._total_timesteps)
+        solo._num_timesteps_at_start = self.pack.run_steps(self._num_timesteps_at_start)
+        solo._episode_num = self.pack.run_steps(self._episode_num)
+        solo._n_updates = self._n_updates
+        solo._current_progress_remaining = self._current_progress_remaining
         modules = [("actor", "actor"), ("actor_target", "actor"), ("critic", "critic"), ("critic_target", "critic")]
         if self.policy.critic_int is not None:
             modules += [("critic_int", "critic"), ("critic_int_target", "critic")]
@@ -865,12 +871,6 @@ class MADDPG(TD3):
             solo.set_env(env)
         return solo
 
-    def _run_noise(self, k: int) -> ActionNoise:
-        noise = self.action_noise
-        if isinstance(noise, VectorizedActionNoise):
-            noise = noise.noises[k * self.envs_per_run]
-        return copy.deepcopy(noise)  # type: ignore[arg-type]
-
     def _run_slice(self, tensor: th.Tensor, module: str, k: int) -> th.Tensor:
         """
         Run ``k``'s groups of a stacked actor (groups: run, network) or critic (groups: critic, run, network) tensor;
@@ -880,24 +880,3 @@ class MADDPG(TD3):
             return tensor.reshape(self.n_runs, -1, *tensor.shape[1:])[k].clone()
         n_critics = self.policy.n_critics
         return tensor.reshape(n_critics, self.n_runs, -1, *tensor.shape[1:])[:, k].reshape(-1, *tensor.shape[1:]).clone()
-
-
-class _ExplorationPack:
-    """The MACB states of a pack's runs as one state dict (what SB3 saves in the model's zip)."""
-
-    def __init__(self, explorations: list[MACB | None]):
-        self.explorations = explorations
-
-    def state_dict(self) -> dict[str, th.Tensor]:
-        return {
-            f"run{k}.{name}": tensor
-            for k, exploration in enumerate(self.explorations)
-            if exploration is not None
-            for name, tensor in exploration.state_dict().items()
-        }
-
-    def load_state_dict(self, state: dict[str, th.Tensor], strict: bool = True) -> None:
-        for k, exploration in enumerate(self.explorations):
-            if exploration is not None:
-                prefix = f"run{k}."
-                exploration.load_state_dict({key[len(prefix) :]: v for key, v in state.items() if key.startswith(prefix)})

@@ -45,7 +45,7 @@ from sb3_macb.callbacks import MultiAgentEvalCallback, _SuccessRateStop, make_ev
 from sb3_macb.common.atomic import AtomicWriteError, atomic_write, remove_leftovers
 from sb3_macb.common.snapshot import restore, snapshot
 from sb3_macb.envs.vec_tasks import make_task_vec_env
-from sb3_macb.maddpg import MADDPG
+from sb3_macb.maddpg import MADDPG, Pack
 
 
 def zoo_folder(name: str) -> str:
@@ -663,7 +663,7 @@ class _Checkpointer(BaseCallback):
         self.freq = freq
 
     def _on_rollout_start(self) -> None:
-        steps = self.model.num_timesteps // self.model.n_runs  # type: ignore[attr-defined]
+        steps = self.model.run_timesteps  # type: ignore[attr-defined]
         if self.freq and steps // self.freq > self.experiment.last_checkpoint // self.freq:
             self.experiment.save_checkpoint()
 
@@ -809,7 +809,7 @@ class Experiment:
         assert env.action_space.shape is not None
         action_dim = int(np.prod(env.action_space.shape))
         noises = [_action_noise(r.hyperparams, action_dim) for r in runs]
-        kwargs["learning_starts"] = int(kwargs.get("learning_starts", 100)) * self.n_runs  # counted over all envs
+        kwargs["learning_starts"] = Pack(self.n_runs).pack_steps(int(kwargs.get("learning_starts", 100)))  # over all envs
         model = MADDPG(
             runs[0].hyperparams.get("policy", "MlpPolicy"),
             env,
@@ -898,7 +898,7 @@ class Experiment:
             name = os.path.basename(os.path.normpath(self.folder))
             model.set_logger(configure(os.path.join(self.tensorboard_log, name), formats))
         self._started = time.time()
-        total = self.config.n_timesteps * self.n_runs
+        total = model.pack.pack_steps(self.config.n_timesteps)
         model.learn(
             total - model.num_timesteps,
             callback=[callback, _Checkpointer(self, self.checkpoint_freq), *self.user_callbacks, *self.callbacks],
@@ -908,12 +908,10 @@ class Experiment:
         )
         if model.num_timesteps < total:
             if not self.user_callbacks and callback.callback is None:
-                raise RuntimeError(
-                    f"Training stopped at {model.num_timesteps // self.n_runs} of {self.config.n_timesteps} steps"
-                )
+                raise RuntimeError(f"Training stopped at {model.run_timesteps} of {self.config.n_timesteps} steps")
             self.stopped_early = True  # a callback ended training (e.g. the success rate reached its threshold)
             if self.verbose:
-                print(f"{self.folder}: stopped by a callback at {model.num_timesteps // self.n_runs} steps")
+                print(f"{self.folder}: stopped by a callback at {model.run_timesteps} steps")
         self._finish()
         return [r.folder for r in self.config.runs]
 
@@ -940,7 +938,7 @@ class Experiment:
                 "buffer_size_per_run": buffer_size_per_run,
                 "complete": True,
                 "stopped_early": self.stopped_early,
-                "timesteps_run": int(self.model.num_timesteps // self.n_runs),
+                "timesteps_run": self.model.run_timesteps,
                 "sb3_macb": sb3_macb.__version__,
             }
             with atomic_write(os.path.join(run.folder, "run.json")) as file:
@@ -980,7 +978,7 @@ class Experiment:
         """
         assert self.model is not None and self.eval_callback is not None
         model = self.model
-        steps = model.num_timesteps // self.n_runs
+        steps = model.run_timesteps
         name = f"step_{steps}"
         root = self.checkpoint_root
         tmp = os.path.join(root, f".{name}.tmp")
