@@ -216,3 +216,20 @@ def test_a_full_disk_while_writing_the_monitor_file_is_one_error_naming_it(tmp_p
     with pytest.raises(AtomicWriteError, match=r"cannot write .*monitor.csv: No space left on device"):
         model.learn(20, callback=callback, reset_num_timesteps=False)
     assert (tmp_path / "monitor.csv").read_text() == written  # no part of a line left behind
+
+
+def test_moving_average_edge_rules():
+    from sb3_macb.common.evaluations import moving_average
+
+    values = np.array([1.0, 0.0, 2.0, 4.0, 3.0])
+    full = [1.0, 2.0, 3.0]  # means of [1, 0, 2], [0, 2, 4], [2, 4, 3]
+    assert np.allclose(moving_average(values, 3, head="drop"), full)
+    assert np.allclose(moving_average(values, 3), [1.0, 0.5, *full])  # "partial": the first points average what is there
+    nan = moving_average(values, 3, head="nan")
+    assert np.isnan(nan[:2]).all() and np.allclose(nan[2:], full)
+    assert np.array_equal(moving_average(values, 1), values)
+    assert len(moving_average(values[:2], 3, head="drop")) == 0 and np.allclose(moving_average(values[:2], 3), [1.0, 0.5])
+    with pytest.raises(ValueError, match="head"):
+        moving_average(values, 3, head="valid")
+    with pytest.raises(ValueError, match="window"):
+        moving_average(values, 0)

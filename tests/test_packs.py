@@ -1,5 +1,7 @@
 """Packs: K runs in one model, each the same experiment as a solo run with its seed."""
 
+import os
+
 import numpy as np
 import pytest
 import torch as th
@@ -356,8 +358,9 @@ def test_a_pack_of_rnd_runs_is_bit_identical_to_its_solo_runs():
 def test_a_pack_saved_by_sb3_macb_0_12_loads():
     # tests/data/pack_v0_12.zip: a pack of two runs (MACB k=16 in run 0, none in run 1, 8-unit layers), 120 steps,
     # saved by sb3_macb 0.12, which held the runs' seeds, generators and explorations as separate model attributes
-    expected = np.load("tests/data/pack_v0_12_expected.npz")
-    model = MADDPG.load("tests/data/pack_v0_12.zip")
+    data = os.path.join(os.path.dirname(__file__), "data")
+    expected = np.load(os.path.join(data, "pack_v0_12_expected.npz"))
+    model = MADDPG.load(os.path.join(data, "pack_v0_12.zip"))
     assert model.n_runs == 2 and model.run_seeds == [3, 4] and model.pack.n_runs == 2
     assert not {"n_runs", "run_seeds", "explorations", "_run_rngs"} & set(vars(model))
     assert model.num_timesteps == expected["num_timesteps"] and model.run_timesteps == expected["num_timesteps"] // 2

@@ -100,14 +100,33 @@ def final_level(run: dict[str, np.ndarray], metric: str = SUCCESSES, window: int
     return float(run[metric][-window:].mean())
 
 
-def smooth(values: np.ndarray, window: int) -> np.ndarray:
-    """Trailing moving average (the first points average what is there)."""
-    if window <= 1 or len(values) == 0:
-        return values
-    cumsum = np.cumsum(np.insert(values, 0, 0.0))
-    counts = np.minimum(np.arange(1, len(values) + 1), window)
-    starts = np.arange(1, len(values) + 1) - counts
-    return (cumsum[np.arange(1, len(values) + 1)] - cumsum[starts]) / counts
+HEADS = ("partial", "nan", "drop")
+
+
+def moving_average(values: np.ndarray, window: int, head: str = "partial") -> np.ndarray:
+    """
+    Trailing moving average: point ``i`` is the mean of ``values[i - window + 1 : i + 1]``. The first ``window - 1``
+    points have fewer values behind them; ``head`` says what they become:
+
+    - ``"partial"``: the mean of the values there are (same length as ``values``; what the plots show);
+    - ``"nan"``: NaN (same length);
+    - ``"drop"``: left out, so the result is ``window - 1`` shorter and starts at the first full window (numpy's
+      ``convolve(..., mode="valid")``; empty when there are fewer than ``window`` values).
+
+    :param values: One value per evaluation.
+    :param window: Values per mean, >= 1 (1: the values themselves).
+    :param head: ``"partial"``, ``"nan"`` or ``"drop"``.
+    """
+    if head not in HEADS:
+        raise ValueError(f"head must be one of {HEADS}, got {head!r}")
+    if window < 1:
+        raise ValueError(f"window must be >= 1, got {window}")
+    values = np.asarray(values, dtype=float)
+    full = np.convolve(values, np.ones(window) / window, mode="valid") if len(values) >= window else np.empty(0)
+    if head == "drop":
+        return full
+    first = np.cumsum(values[: window - 1]) / np.arange(1, min(window, len(values) + 1))
+    return np.concatenate([first if head == "partial" else np.full(len(first), np.nan), full])
 
 
 def episodes_to(successes: np.ndarray, run_episodes: np.ndarray, threshold: float, window: int) -> tuple[float, bool]:
@@ -115,7 +134,7 @@ def episodes_to(successes: np.ndarray, run_episodes: np.ndarray, threshold: floa
     Training episodes until the success rate, averaged over ``window`` consecutive evaluations, first reaches
     ``threshold``; ``(last episode, False)`` if it never does (the run is censored there).
     """
-    moving = np.convolve(successes.mean(axis=1), np.ones(window) / window, mode="valid")
+    moving = moving_average(successes.mean(axis=1), window, head="drop")
     # a mean exactly at the threshold counts as reaching it: 1,800 of 2,000 is 0.9 even where the sum rounds below
     hits = np.flatnonzero(moving >= threshold - 1e-9)
     if len(hits):

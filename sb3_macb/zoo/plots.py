@@ -41,7 +41,6 @@ def _pyplot() -> Any:
 
 
 load_group = evaluations.load_group
-smooth = evaluations.smooth
 
 
 def mean_and_band(curves: list[np.ndarray], confidence: float) -> tuple[np.ndarray, np.ndarray]:
@@ -96,8 +95,16 @@ def plot_curves(
     listeners' levels as horizontal lines. With ``complete_only``, runs still in progress are left out (otherwise
     a group's curve ends where its shortest run does, with a warning).
 
+    :param groups: Run-group folders: every evaluations.npz below one (at any depth) is a run of that group.
+    :param output: The image file to write.
+    :param window: Evaluations in the trailing moving average (:func:`~sb3_macb.common.evaluations.moving_average`,
+        whose first points average what is there); 0 or 1: none.
+    :param confidence: Level of the band around the mean over seeds.
+    :param reference: The scripted listeners' levels (JSON), drawn as horizontal lines; None: none.
+    :param complete_only: Leave out runs whose ``run.json`` does not say ``complete``.
     :return: The figure's title (task folders, seeds' band, the smoothing actually applied, episodes shown).
     """
+    window = max(int(window), 1)
     plt = _pyplot()
     all_runs = {folder: load_group(folder, complete_only=complete_only) for folder in groups}
     panels = [(evaluations.SUCCESSES, "any-step success rate"), (evaluations.RESULTS, "mean return")]
@@ -111,7 +118,7 @@ def plot_curves(
         for ax, (key, _) in zip(axes, panels):
             if not all(key in r for r in runs):
                 continue
-            curves = [smooth(evaluations.rate(r, key), window) for r in runs]
+            curves = [evaluations.moving_average(evaluations.rate(r, key), window) for r in runs]
             mean, band = mean_and_band(curves, confidence)
             xs = x[: len(mean)]
             ax.plot(xs, mean, label=label)

@@ -29,14 +29,6 @@ import numpy as np
 from sb3_macb.common import evaluations
 
 
-def trailing(values: np.ndarray, window: int) -> np.ndarray:
-    """Trailing mean over ``window`` values, NaN until ``window`` values exist."""
-    out = np.full(len(values), np.nan)
-    if len(values) >= window:
-        out[window - 1 :] = np.convolve(values, np.ones(window) / window, mode="valid")
-    return out
-
-
 def identical_until(first: dict[str, np.ndarray], second: dict[str, np.ndarray]) -> tuple[int | None, bool]:
     """
     The last step at which two runs' evaluations are still identical (returns per episode and per agent), and
@@ -58,9 +50,9 @@ def identical_until(first: dict[str, np.ndarray], second: dict[str, np.ndarray])
 def run_row(run: dict[str, np.ndarray], args: argparse.Namespace, milestones: list[int]) -> list[str]:
     """The table cells of one run."""
     episodes = evaluations.episodes(run)
-    any_step = trailing(evaluations.rate(run, evaluations.SUCCESSES), args.window)
+    any_step = evaluations.moving_average(evaluations.rate(run, evaluations.SUCCESSES), args.window, head="nan")
     final = (
-        trailing(evaluations.rate(run, evaluations.FINAL_SUCCESSES), args.window)
+        evaluations.moving_average(evaluations.rate(run, evaluations.FINAL_SUCCESSES), args.window, head="nan")
         if evaluations.FINAL_SUCCESSES in run
         else np.full(len(episodes), np.nan)
     )
