@@ -10,6 +10,7 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_macb.exploration.macb import MACB
+from sb3_macb.exploration.rnd import RND
 
 
 class RunSamples(NamedTuple):
@@ -249,7 +250,7 @@ class MACBReplayBuffer(MultiAgentReplayBuffer):
         handle_timeout_termination: bool = True,
         n_agents: int = 1,
         n_runs: int = 1,
-        exploration: "MACB | list[MACB | None] | None" = None,
+        exploration: "MACB | RND | list[MACB | RND | None] | None" = None,
     ):
         explorations = exploration if isinstance(exploration, list) else [exploration]
         if len(explorations) != n_runs or not any(e is not None for e in explorations):
@@ -267,7 +268,7 @@ class MACBReplayBuffer(MultiAgentReplayBuffer):
             n_agents=n_agents,
             n_runs=n_runs,
         )
-        self.explorations: list[MACB | None] = explorations
+        self.explorations: list[MACB | RND | None] = explorations
         n_tables = max(e.n_tables for e in explorations if e is not None)
         self.hash_keys = np.zeros((self.buffer_size, self.n_envs, n_tables), dtype=np.uint64)
         self.bonus_sum = 0.0
@@ -276,12 +277,12 @@ class MACBReplayBuffer(MultiAgentReplayBuffer):
     _array_names = (*MultiAgentReplayBuffer._array_names, "hash_keys")
 
     @property
-    def exploration(self) -> "MACB | None":
+    def exploration(self) -> "MACB | RND | None":
         """The MACB of a single run."""
         return self.explorations[0]
 
     @exploration.setter
-    def exploration(self, value: "MACB | list[MACB | None] | None") -> None:
+    def exploration(self, value: "MACB | RND | list[MACB | RND | None] | None") -> None:
         self.explorations = value if isinstance(value, list) else [value]
 
     def add(

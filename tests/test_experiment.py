@@ -68,6 +68,7 @@ def run_pack(tmp_path, tag, steps, resume=False, kill_at_checkpoint=None):
     process.wait()
 
 
+@pytest.mark.slow
 def test_a_run_killed_and_resumed_gives_the_same_evaluations(tmp_path):
     run_pack(tmp_path, "whole", 1200)
     run_pack(tmp_path, "cut", 1200, kill_at_checkpoint=500)
@@ -139,6 +140,7 @@ def test_resume_refuses_what_it_cannot_continue(tmp_path, monkeypatch):
         load_checkpoint(checkpoint, allow_other_version=True)
 
 
+@pytest.mark.slow
 def test_a_mixed_pack_through_the_runner_equals_its_solo_runs_past_the_buffer(tmp_path):
     def hyperparams(variants):
         hp = load_hyperparams(COMM, variants=variants)
@@ -241,6 +243,7 @@ while True:
 """.format(env=COMM)
 
 
+@pytest.mark.slow
 def test_a_save_killed_at_any_moment_leaves_the_previous_file(tmp_path):
     script = tmp_path / "loop.py"
     script.write_text(SAVE_LOOP)

@@ -448,6 +448,7 @@ def test_parameter_sharing_groups_ids_save_load_and_errors(tmp_path):
         MADDPG("MlpPolicy", tag, share_parameters="prefix", share_critics=True, centralized_critic=False)
 
 
+@pytest.mark.slow
 def test_learns_discrete_speaker_listener():
     """Discrete MADDPG (straight-through Gumbel-softmax) on mpe2's default (discrete) speaker-listener, 25-step
     episodes: after 3,000 steps its return beats a uniformly random policy's by a wide margin (threshold fixed before

@@ -174,7 +174,7 @@ class ReferenceMADDPG:
 
 def _record_updates(model: MADDPG, updates: int, batch_size: int) -> list[dict]:
     """Train ``updates`` steps and return, per update, the minibatch and random draws of every run (in order)."""
-    sample, draws = model.replay_buffer.sample_runs, model._per_run_draws
+    sample, draws = model.replay_buffer.sample_runs, model.pack.draws
     steps: list[dict] = []
 
     def recording_sample(*args, **kwargs):  # type: ignore[no-untyped-def]
@@ -182,17 +182,17 @@ def _record_updates(model: MADDPG, updates: int, batch_size: int) -> list[dict]:
         steps.append({"batch": [t.clone() for t in data[:5]]})
         return data
 
-    def recording_draws(distribution: str, shape: tuple[int, ...]) -> th.Tensor:
-        out = draws(distribution, shape)
+    def recording_draws(distribution: str, shape: tuple[int, ...], device: th.device | str = "cpu") -> th.Tensor:
+        out = draws(distribution, shape, device)
         steps[-1][distribution] = out.clone()
         return out
 
     model.replay_buffer.sample_runs = recording_sample
-    model._per_run_draws = recording_draws
+    model.pack.draws = recording_draws  # type: ignore[method-assign]
     try:
         model.train(updates, batch_size=batch_size)
     finally:
-        del model.replay_buffer.sample_runs, model._per_run_draws
+        del model.replay_buffer.sample_runs, model.pack.draws
     assert len(steps) == updates
     return steps
 

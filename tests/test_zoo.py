@@ -276,6 +276,7 @@ def test_a_postgresql_server_that_stops_answering_mid_sweep_is_reported_at_once(
     assert "Traceback" not in err and "did not answer within 5 s" in lines[-1] and "127.0.0.1" in lines[-1], err
 
 
+@pytest.mark.slow
 def test_killed_workers_trial_is_run_again(tmp_path):
     storage = f"sqlite:///{tmp_path / 'sweep.db'}"
     config = sweep_config(tmp_path, n_timesteps=4000, betas=(0.5,), ks=(16, 32))

@@ -101,7 +101,7 @@ class _GroupedReluMLP(th.autograd.Function):
     """Forward and backward of all groups and layers of a ReLU MLP in one autograd node (CPU, oneDNN)."""
 
     @staticmethod
-    def forward(  # type: ignore[override]
+    def forward(
         ctx: Any,
         x: th.Tensor,
         sum_groups: bool,
@@ -144,7 +144,7 @@ class _GroupedReluMLP(th.autograd.Function):
         return out.to(x.dtype)
 
     @staticmethod
-    def backward(ctx: Any, grad_out: th.Tensor) -> tuple[th.Tensor | None, ...]:  # type: ignore[override]
+    def backward(ctx: Any, grad_out: th.Tensor) -> tuple[th.Tensor | None, ...]:
         weights = ctx.saved_tensors
         n_layers = len(weights)
         n_groups = weights[0].shape[0]
@@ -164,10 +164,11 @@ class _GroupedReluMLP(th.autograd.Function):
                     following = acts[layer + 1]  # this layer's ReLU output, as the next layer read it
                     grad = th.ops.aten.threshold_backward(grad.to(following.dtype), following, 0)
                 grad = grad.to(weights[layer].dtype)
-                if grad_w[layer] is not None:
-                    _matmul_nt(grad.t(), acts[layer].t(), out=grad_w[layer][g])
-                if grad_b[layer] is not None:
-                    th.sum(grad, dim=0, out=grad_b[layer][g])
+                layer_grad_w, layer_grad_b = grad_w[layer], grad_b[layer]
+                if layer_grad_w is not None:
+                    _matmul_nt(grad.t(), acts[layer].t(), out=layer_grad_w[g])
+                if layer_grad_b is not None:
+                    th.sum(grad, dim=0, out=layer_grad_b[g])
                 if layer > 0 or need_x:
                     grad = _matmul_nt(grad, weights[layer][g].t())
             if need_x:
@@ -197,12 +198,12 @@ class _SharedGather(th.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx: Any, params: th.Tensor, index: th.Tensor, members: th.Tensor) -> th.Tensor:  # type: ignore[override]
+    def forward(ctx: Any, params: th.Tensor, index: th.Tensor, members: th.Tensor) -> th.Tensor:
         ctx.save_for_backward(members)
         return params.index_select(0, index)
 
     @staticmethod
-    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:  # type: ignore[override]
+    def backward(ctx: Any, grad: th.Tensor) -> tuple[th.Tensor | None, ...]:
         (members,) = ctx.saved_tensors
         padded = th.cat([grad, grad.new_zeros(1, *grad.shape[1:])])  # row len(grad): a zero for absent members
         total = padded.index_select(0, members[:, 0])
@@ -266,6 +267,13 @@ class GroupedMLP(nn.Module):
         minibatches of networks with a large layer run wholly in bfloat16. Opt-in: it pays where the CPU has native
         bfloat16 GEMMs (AVX-512 BF16, AMX) and the layers are large.
     """
+
+    # buffers (registered in __init__)
+    in_mask: th.Tensor | None
+    out_mask: th.Tensor
+    out_bias_mask: th.Tensor
+    param_index: th.Tensor | None
+    param_members: th.Tensor
 
     use_onednn: bool = True  # class-wide switch of the per-group GEMM path (oneDNN or MKL), taken only where it applies
 

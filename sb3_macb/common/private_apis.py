@@ -25,7 +25,7 @@ PettingZoo's documentation of custom MPE environments uses) and SB3's ``EvalCall
 subclass of ``EvalCallback`` fills).
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch as th
@@ -120,14 +120,14 @@ def fused_adam_(
     public_adam(params, grads, exp_avgs, exp_avg_sqs, max_exp_avg_sqs, [s - 1 for s in steps], fused=True, **settings)
 
 
-def parameter_values(parameters: nn.ParameterList) -> list[nn.Parameter]:
+def parameter_values(parameters: nn.ParameterList) -> list[th.Tensor]:
     """The parameters of ``parameters``, in order."""
     if use_private and PARAMETER_DICT:
         return list(parameters._parameters.values())  # type: ignore[arg-type]
     return list(parameters)
 
 
-def set_next_reset_seeds(venv: Any, seeds: list[int | None]) -> None:
+def set_next_reset_seeds(venv: Any, seeds: Sequence[int | None]) -> None:
     """
     Seed each env of ``venv`` (an SB3 ``VecEnv``, unwrapped) with its own seed at its next reset, as ``VecEnv.seed``
     does with ``seed + index``.

@@ -17,7 +17,7 @@ from stable_baselines3.common.noise import (
 )
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule, TrainFrequencyUnit
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule, TrainFreq, TrainFrequencyUnit
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.td3 import TD3
 
@@ -155,11 +155,12 @@ class MADDPG(TD3):
         "intrinsic_gamma",
         "intrinsic_coef",
     )
-    policy: MADDPGPolicy
-    actor: MultiAgentActor
-    actor_target: MultiAgentActor
-    critic: MultiAgentCritic
-    critic_target: MultiAgentCritic
+    # (narrower than TD3's types: MADDPG's networks are its own classes)
+    policy: MADDPGPolicy  # type: ignore[assignment]
+    actor: MultiAgentActor  # type: ignore[assignment]
+    actor_target: MultiAgentActor  # type: ignore[assignment]
+    critic: MultiAgentCritic  # type: ignore[assignment]
+    critic_target: MultiAgentCritic  # type: ignore[assignment]
     replay_buffer: MultiAgentReplayBuffer
 
     def __init__(
@@ -182,7 +183,7 @@ class MADDPG(TD3):
         target_policy_noise: float = 0.0,
         target_noise_clip: float = 0.5,
         centralized_critic: bool = True,
-        exploration: MACB | dict[str, Any] | list[MACB | dict[str, Any] | None] | None = None,
+        exploration: MACB | RND | dict[str, Any] | list[MACB | RND | dict[str, Any] | None] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -260,11 +261,15 @@ class MADDPG(TD3):
             raise ValueError(f"action_noise: expected one per run ({n_runs}), got {len(action_noise)}")
         # (the pack, with its explorations' settings, travels in the saved data; their matrices and count tables
         # as a state dict)
-        run_noises = action_noise if isinstance(action_noise, (list, tuple)) else None
-        if run_noises is not None:
-            action_noise = run_noises[0]
+        run_noises: list[ActionNoise] | None = None
+        first_noise: ActionNoise | None
+        if isinstance(action_noise, (list, tuple)):
+            run_noises = list(action_noise)
+            first_noise = run_noises[0]
+        else:
+            first_noise = action_noise
         super().__init__(
-            policy,
+            policy,  # type: ignore[arg-type]  # (a MADDPGPolicy, not a TD3Policy)
             env,
             learning_rate=learning_rate,
             buffer_size=buffer_size,
@@ -274,7 +279,7 @@ class MADDPG(TD3):
             gamma=gamma,
             train_freq=train_freq,
             gradient_steps=gradient_steps,
-            action_noise=action_noise,
+            action_noise=first_noise,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
@@ -460,6 +465,7 @@ class MADDPG(TD3):
         self._adopt_saved_runs()
         self.pack.envs_per_run(self.n_envs)  # (a clear error when the envs cannot be split between the runs)
         self._convert_train_freq()  # (SB3's, idempotent: checked here, before the replay buffer is allocated)
+        assert isinstance(self.train_freq, TrainFreq)
         if self.n_runs > 1 and self.train_freq.unit != TrainFrequencyUnit.STEP:
             raise ValueError("train_freq: a pack counts it in steps ((N, 'step')); SB3 counts episodes over all envs")
         buffer_extra: dict[str, Any] = {"n_agents": layout.n_agents, "n_runs": self.n_runs}
@@ -495,23 +501,23 @@ class MADDPG(TD3):
 
         # Agent i's slice of the joint action, to put its actor's action into its own critic's input
         masks = _block_mask(layout.action_slices, layout.action_dim)[:, None, :]
-        self._action_masks = th.as_tensor(masks, device=self.device)
-        self._actor_params = list(self.actor.parameters())
-        self._actor_target_params = list(self.actor_target.parameters())
-        self._critic_params = list(self.critic.parameters())
-        self._critic_target_params = list(self.critic_target.parameters())
+        self._action_masks: th.Tensor = th.as_tensor(masks, device=self.device)
+        self._actor_params: list[th.Tensor] = list(self.actor.parameters())
+        self._actor_target_params: list[th.Tensor] = list(self.actor_target.parameters())
+        self._critic_params: list[th.Tensor] = list(self.critic.parameters())
+        self._critic_target_params: list[th.Tensor] = list(self.critic_target.parameters())
         if self.policy.critic_int is not None:  # (the intrinsic critics' targets follow theirs in the same lerp)
             self._critic_params += list(self.policy.critic_int.parameters())
-            self._critic_target_params += list(self.policy.critic_int_target.parameters())  # type: ignore[union-attr]
+            self._critic_target_params += list(self.policy.critic_int_target.parameters())
         # the joint action's entries of discrete agents (None: every agent is continuous), read at every step
-        self._discrete_mask = layout.discrete_action_mask if self.actor.has_discrete else None
+        self._discrete_mask: np.ndarray | None = layout.discrete_action_mask if self.actor.has_discrete else None
         # preactivation_reg's weight of each joint-action component: 1 / its agent's action_dim for continuous
         # components (a per-agent mean), 0 for discrete ones (their logits have their own penalty)
         dims = np.asarray(layout.action_dims)
         weights = th.as_tensor(np.repeat(1.0 / dims, dims), dtype=th.float32, device=self.device)
         if self.actor.has_discrete:
             weights = weights.masked_fill(self.actor.discrete_mask, 0.0)
-        self._preactivation_weights = weights
+        self._preactivation_weights: th.Tensor = weights
 
     def _adopt_saved_runs(self) -> None:
         """Build :attr:`pack` from the attributes a model saved by sb3_macb <= 0.12 holds instead of one."""
@@ -825,7 +831,7 @@ class MADDPG(TD3):
         defaults = inspect.signature(MADDPG.__init__).parameters  # (for settings a model saved by an older version lacks)
         settings = {name: copy.deepcopy(getattr(self, name, defaults[name].default)) for name in self._RUN_SETTINGS}
         solo = type(self)(
-            policy=self.policy_class,
+            policy=self.policy_class,  # type: ignore[arg-type]  # (a MADDPGPolicy class)
             env=None,
             device=self.device,
             seed=None if run.seeds is None else run.seeds[0],

@@ -112,6 +112,18 @@ class MultiAgentActor(nn.Module):
     :param precision: Precision of the products (``"fp32"`` or ``"bf16"``, see :class:`GroupedMLP`).
     """
 
+    mu: GroupedMLP
+    optimizer: th.optim.Optimizer  # (set by MADDPGPolicy)
+    # buffers (registered in __init__; the sharing and discrete ones only where they apply)
+    obs_gather: th.Tensor
+    agent_ids: th.Tensor
+    action_scatter: th.Tensor
+    discrete_mask: th.Tensor
+    pad_idx: th.Tensor
+    pad_fill: th.Tensor
+    pad_valid: th.Tensor
+    discrete_dims: th.Tensor
+
     def __init__(
         self,
         layout: AgentLayout,
@@ -240,6 +252,10 @@ class MultiAgentCritic(nn.Module):
     :param share_groups: Agents that share one critic (lists of agent indices; None: no sharing).
     :param precision: Precision of the products (``"fp32"`` or ``"bf16"``, see :class:`GroupedMLP`).
     """
+
+    q_net: GroupedMLP
+    optimizer: th.optim.Optimizer  # (set by MADDPGPolicy)
+    agent_ids: th.Tensor  # buffer of shared critics
 
     def __init__(
         self,
@@ -410,7 +426,7 @@ class MADDPGPolicy(BasePolicy):
             raise ValueError(f"policy_kwargs precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         self.precision = precision
         self.intrinsic_critic = bool(intrinsic_critic)
-        self._actor_kwargs = dict(
+        self._actor_kwargs: dict[str, Any] = dict(
             layout=agent_layout,
             net_arch=actor_arch,
             activation_fn=activation_fn,
@@ -418,7 +434,7 @@ class MADDPGPolicy(BasePolicy):
             share_groups=share_actors,
             precision=precision,
         )
-        self._critic_kwargs = dict(
+        self._critic_kwargs: dict[str, Any] = dict(
             layout=agent_layout,
             net_arch=critic_arch,
             activation_fn=activation_fn,
@@ -458,7 +474,7 @@ class MADDPGPolicy(BasePolicy):
         if self.optimizer_class is th.optim.Adam and not ({"fused", "foreach"} & set(kwargs)):
             # Adam's fused kernel, given each run's block of the stacked tensors separately, so that a run is
             # updated the same way alone or in a pack
-            blocks = [net.block_bounds for _ in net.parameters()]
+            blocks: list[list[tuple[int, int]] | None] = [net.block_bounds for _ in net.parameters()]
             return BlockAdam(net.parameters(), blocks=blocks, lr=lr_schedule(1), **kwargs)
         return self.optimizer_class(net.parameters(), lr=lr_schedule(1), **kwargs)  # type: ignore[call-arg]
 
@@ -489,7 +505,7 @@ class MADDPGPolicy(BasePolicy):
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
         # MADDPG actors are deterministic: exploration comes from action noise
-        return self.actor(observation)  # type: ignore[arg-type]
+        return self.actor(observation)
 
     def set_training_mode(self, mode: bool) -> None:
         """

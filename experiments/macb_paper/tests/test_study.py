@@ -425,6 +425,7 @@ def test_collapse_diagnostics_on_buffer_measures_each_critic_against_its_own_tar
     assert list(diagnostics.buffer_rows(model, 3)) == [7, 8, 9] and len(diagnostics.buffer_rows(model)) == buffer.buffer_size
 
 
+@pytest.mark.slow
 def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tmp_path):
     import json
 
@@ -453,6 +454,7 @@ def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tm
     assert not (tmp_path / "out" / "CommunicativeNavigation-sparse" / "maddpg" / "seed_0").exists()
 
 
+@pytest.mark.slow
 def test_reproduce_mix_seeds_fills_packs_across_seeds_with_the_same_runs(tmp_path):
     import argparse
 
