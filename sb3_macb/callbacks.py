@@ -252,17 +252,17 @@ class MultiAgentEvalCallback(EvalCallback):
     def _alias_records(self) -> None:
         # SB3's attribute names (and the package's earlier ones) for the first run's records
         first = self.records[0]
-        self.evaluations_timesteps = first["timesteps"]
-        self.evaluations_results = first["results"]
-        self.evaluations_length = first["ep_lengths"]
-        self.evaluations_successes = first["successes"]
-        self.evaluations_final_successes = first["final_successes"]
-        self.evaluations_episodes = first["episodes"]
-        self.evaluations_agent_returns = first["agent_returns"]
-        self.evaluations_collisions = first["collisions"]
-        self.evaluations_num_codes = first["num_codes"]
-        self.evaluations_count1 = first["count1_fraction"]
-        self.evaluations_training_collisions = first["training_collisions"]
+        self.evaluations_timesteps = first[evaluations.TIMESTEPS]
+        self.evaluations_results = first[evaluations.RESULTS]
+        self.evaluations_length = first[evaluations.EP_LENGTHS]
+        self.evaluations_successes = first[evaluations.SUCCESSES]
+        self.evaluations_final_successes = first[evaluations.FINAL_SUCCESSES]
+        self.evaluations_episodes = first[evaluations.EPISODES]
+        self.evaluations_agent_returns = first[evaluations.AGENT_RETURNS]
+        self.evaluations_collisions = first[evaluations.COLLISIONS]
+        self.evaluations_num_codes = first[evaluations.NUM_CODES]
+        self.evaluations_count1 = first[evaluations.COUNT1_FRACTION]
+        self.evaluations_training_collisions = first[evaluations.TRAINING_COLLISIONS]
 
     def _per_run(self, count: int) -> int:
         """One run's share of a count over all the model's envs (the model's own count when it is no pack)."""
@@ -476,19 +476,21 @@ class MultiAgentEvalCallback(EvalCallback):
             episodes = [ep for env in range(run * per_run, (run + 1) * per_run) for ep in env_episodes[env]]
             successes = [ep["success"] for ep in episodes if ep["success"] is not None]
             exploration = explorations[run]
-            record["timesteps"].append(self.run_timesteps)
-            record["results"].append([ep["return"] for ep in episodes])
-            record["ep_lengths"].append([ep["length"] for ep in episodes])
-            record["successes"].append(successes)
-            record["final_successes"].append([ep["final_success"] for ep in episodes if ep["final_success"] is not None])
-            record["episodes"].append(int(self.run_episodes[run]))  # type: ignore[index]
-            record["agent_returns"].append(np.array([ep["agent_returns"] for ep in episodes]))
-            record["collisions"].append([ep["collisions"] for ep in episodes])
-            record["num_codes"].append(exploration.num_codes if exploration is not None else 0)
-            record["count1_fraction"].append(exploration.count1_fraction if exploration is not None else 0.0)
-            record["training_collisions"].append(int(self.run_training_collisions[run]))  # type: ignore[index]
+            record[evaluations.TIMESTEPS].append(self.run_timesteps)
+            record[evaluations.RESULTS].append([ep["return"] for ep in episodes])
+            record[evaluations.EP_LENGTHS].append([ep["length"] for ep in episodes])
+            record[evaluations.SUCCESSES].append(successes)
+            record[evaluations.FINAL_SUCCESSES].append(
+                [ep["final_success"] for ep in episodes if ep["final_success"] is not None]
+            )
+            record[evaluations.EPISODES].append(int(self.run_episodes[run]))  # type: ignore[index]
+            record[evaluations.AGENT_RETURNS].append(np.array([ep["agent_returns"] for ep in episodes]))
+            record[evaluations.COLLISIONS].append([ep["collisions"] for ep in episodes])
+            record[evaluations.NUM_CODES].append(exploration.num_codes if exploration is not None else 0)
+            record[evaluations.COUNT1_FRACTION].append(exploration.count1_fraction if exploration is not None else 0.0)
+            record[evaluations.TRAINING_COLLISIONS].append(int(self.run_training_collisions[run]))  # type: ignore[index]
             run_rates.append(float(np.mean(successes)) if successes else None)
-            run_returns.append(float(np.mean(record["results"][-1])))
+            run_returns.append(float(np.mean(record[evaluations.RESULTS][-1])))
         n_evaluations = len(self.evaluations_timesteps)
         if n_evaluations - self._saved_evaluations >= max(self.save_freq, n_evaluations // 10):
             self.save_evaluations()
@@ -501,20 +503,20 @@ class MultiAgentEvalCallback(EvalCallback):
         self.last_success_rate = success_rate
         last = [record for record in self.records]
         scalars: dict[str, float | int] = {"eval/mean_reward": mean_reward}
-        scalars["eval/mean_ep_length"] = float(np.mean([np.mean(r["ep_lengths"][-1]) for r in last]))
+        scalars["eval/mean_ep_length"] = float(np.mean([np.mean(r[evaluations.EP_LENGTHS][-1]) for r in last]))
         if success_rate is not None:
             scalars["eval/success_rate"] = success_rate
-            finals = [np.mean(r["final_successes"][-1]) for r in last if r["final_successes"][-1]]
+            finals = [np.mean(r[evaluations.FINAL_SUCCESSES][-1]) for r in last if r[evaluations.FINAL_SUCCESSES][-1]]
             if finals:
                 scalars["eval/final_success_rate"] = float(np.mean(finals))
-        agent_returns = [r["agent_returns"][-1] for r in last if len(r["agent_returns"][-1])]
+        agent_returns = [r[evaluations.AGENT_RETURNS][-1] for r in last if len(r[evaluations.AGENT_RETURNS][-1])]
         if agent_returns:
             returns = np.mean(np.concatenate(agent_returns), axis=0)
             layout = getattr(self.model, "agent_layout", None)
             names = layout.agents if layout is not None else [str(i) for i in range(len(returns))]
             for name, value in zip(names, returns):
                 scalars[f"eval/return_{name}"] = float(value)
-        scalars["eval/collisions"] = float(np.mean([np.mean(r["collisions"][-1]) for r in last]))
+        scalars["eval/collisions"] = float(np.mean([np.mean(r[evaluations.COLLISIONS][-1]) for r in last]))
         scalars["rollout/collisions_total"] = self.training_collisions
         with_macb = [e for e in explorations if e is not None]
         if with_macb:
@@ -552,7 +554,9 @@ class MultiAgentEvalCallback(EvalCallback):
 
     def _recent_rate(self) -> float:
         """Success rate over the last ``log_freq`` evaluations, mean over the runs."""
-        rates = [np.mean([np.mean(s) for s in r["successes"][-self.log_freq :] if len(s)] or [0.0]) for r in self.records]
+        rates = [
+            np.mean([np.mean(s) for s in r[evaluations.SUCCESSES][-self.log_freq :] if len(s)] or [0.0]) for r in self.records
+        ]
         return float(np.mean(rates))
 
     def _run_file(self, run: int) -> str | None:
@@ -568,7 +572,7 @@ class MultiAgentEvalCallback(EvalCallback):
         """Write each run's ``evaluations.npz`` (SB3's fields plus the multi-agent ones), compressed and atomically."""
         for run, record in enumerate(self.records):
             path = self._run_file(run)
-            if path is not None and record["timesteps"]:
+            if path is not None and record[evaluations.TIMESTEPS]:
                 evaluations.save(path, record)
         self._saved_evaluations = len(self.evaluations_timesteps)
 
