@@ -162,6 +162,8 @@ class MADDPG(TD3):
     critic: MultiAgentCritic  # type: ignore[assignment]
     critic_target: MultiAgentCritic  # type: ignore[assignment]
     replay_buffer: MultiAgentReplayBuffer
+    #: The runs of the model (seeds, random generators, explorations) and the step arithmetic between them.
+    pack: Pack
 
     def __init__(
         self,
