@@ -6,7 +6,7 @@ from sb3_macb.exploration import MACB, RND
 from sb3_macb.maddpg import MADDPG, MADDPGPolicy, MlpPolicy
 from sb3_macb.matd3 import MATD3
 
-__version__ = "0.12.0"
+__version__ = "0.13.0"
 
 __all__ = [
     "MACB",
