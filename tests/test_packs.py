@@ -17,7 +17,7 @@ COMM = "sb3_macb/CommunicativeNavigation-v0"
 FIELDS = ("timesteps", "results", "successes", "final_successes", "episodes", "num_codes", "count1_fraction")
 
 
-def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision="fp32", buffer_size=1_000_000):
+def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision="fp32", buffer_size=1_000_000, **policy):
     """A pack (or a solo run, with one seed) on Communicative Navigation, evaluated every episode."""
     n = len(seeds)
     noises = [NormalActionNoise(np.zeros(5), s * np.ones(5)) for s in (sigmas or [0.1] * n)]
@@ -31,7 +31,7 @@ def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision=
         batch_size=16,
         buffer_size=buffer_size,
         learning_starts=40 * n,
-        policy_kwargs=dict(net_arch=list(net_arch), precision=precision),
+        policy_kwargs=dict(net_arch=list(net_arch), precision=precision, **policy),
     )
     callback = MultiAgentEvalCallback(make_eval_vec_env(COMM, 4, seeds), n_eval_episodes=4, eval_freq=20, verbose=0, warn=False)
     model.learn(steps * n, callback=callback)
@@ -80,6 +80,22 @@ def test_a_bf16_pack_is_bit_identical_to_its_solo_runs():
         assert run.policy.precision == "bf16"
         for a, b in zip(run.policy.state_dict().values(), solo.policy.state_dict().values()):
             assert th.equal(a, b), k
+
+
+def test_large_layers_on_the_batched_path_keep_packs_bit_identical_to_solo_runs():
+    seeds = [3, 4]
+    pack, pack_cb = train(seeds, settings()[:2], 100, (128, 96), buffer_size=60, large_layers="batched")
+    assert pack.actor.mu.large_layers == pack.critic.q_net.large_layers == "batched"
+    default, _ = train(seeds, settings()[:2], 100, (128, 96), buffer_size=60)
+    assert not th.equal(pack.critic.q_net.weights[1], default.critic.q_net.weights[1])  # the other path's rounding
+    for k, (seed, exploration) in enumerate(zip(seeds, settings()[:2])):
+        solo, solo_cb = train([seed], [exploration], 100, (128, 96), buffer_size=60, large_layers="batched")
+        for name in FIELDS:
+            assert np.array_equal(np.asarray(solo_cb.records[0][name]), np.asarray(pack_cb.records[k][name])), (k, name)
+        for a, b in zip(pack.get_run(k).policy.state_dict().values(), solo.policy.state_dict().values()):
+            assert th.equal(a, b), k
+    with pytest.raises(ValueError, match="large_layers"):
+        MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), policy_kwargs=dict(large_layers="fast"))
 
 
 def test_a_run_handed_out_works_alone(tmp_path):

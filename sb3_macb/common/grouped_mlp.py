@@ -21,6 +21,7 @@ from torch import nn
 from sb3_macb.common.private_apis import ONEDNN_LINEAR, parameter_values
 
 PRECISIONS = {"fp32": None, "bf16": th.bfloat16}  # GroupedMLP's precision option: the dtype of the products
+LARGE_LAYER_PATHS = ("per_group", "batched")  # GroupedMLP's large_layers option
 
 # Products with at least this many weights per group and this many rows go through oneDNN's GEMM; smaller ones
 # (where a call's fixed cost dominates, e.g. predict() on one observation) use addmm.
@@ -266,6 +267,11 @@ class GroupedMLP(nn.Module):
         large layer (e.g. 64-64) compute exactly as in float32. On the batched path (other devices, activations) the
         minibatches of networks with a large layer run wholly in bfloat16. Opt-in: it pays where the CPU has native
         bfloat16 GEMMs (AVX-512 BF16, AMX) and the layers are large.
+    :param large_layers: How networks with a large layer compute their products on the CPU: ``"per_group"``
+        (default) one oneDNN (or MKL) product per group and layer, ``"batched"`` one batched product per layer for all
+        groups, as small networks always do. Either way a run computes the same alone or in a pack; the two give
+        the same results up to float32 rounding, and which is faster depends on the CPU
+        (``benchmarks/update_paths.py``).
     """
 
     # buffers (registered in __init__)
@@ -289,11 +295,15 @@ class GroupedMLP(nn.Module):
         group_blocks: np.ndarray | None = None,
         param_index: np.ndarray | None = None,
         precision: str = "fp32",
+        large_layers: str = "per_group",
     ):
         super().__init__()
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        if large_layers not in LARGE_LAYER_PATHS:
+            raise ValueError(f"large_layers must be one of {list(LARGE_LAYER_PATHS)}, got {large_layers!r}")
         self.precision = precision
+        self.large_layers = large_layers
         self._low_dtype = PRECISIONS[precision]
         in_mask_t = th.as_tensor(np.asarray(in_mask), dtype=th.float32)
         out_mask_t = th.as_tensor(np.asarray(out_mask), dtype=th.float32)
@@ -366,7 +376,14 @@ class GroupedMLP(nn.Module):
         # (the ParameterLists' own __getitem__/__iter__ cost more than the small layers' matmuls)
         weights, biases = parameter_values(self.weights), parameter_values(self.biases)
         in_mask, out_mask, out_bias_mask = self.in_mask, self.out_mask, self.out_bias_mask
-        large = self._large and self.use_onednn and self._relu and x.device.type == "cpu" and x.dtype == th.float32
+        large = (
+            self._large
+            and self.large_layers == "per_group"
+            and self.use_onednn
+            and self._relu
+            and x.device.type == "cpu"
+            and x.dtype == th.float32
+        )
         # bfloat16 for the large layers of minibatches only: small products (small layers; acting and evaluating on
         # a few rows) are faster in float32
         use_low = self._low_dtype is not None and self._large and x.shape[-2] >= ONEDNN_MIN_ROWS

@@ -10,7 +10,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_macb.common.block_adam import BlockAdam
-from sb3_macb.common.grouped_mlp import PRECISIONS, GroupedMLP
+from sb3_macb.common.grouped_mlp import LARGE_LAYER_PATHS, PRECISIONS, GroupedMLP
 from sb3_macb.envs.joint_env import AgentLayout
 
 
@@ -110,6 +110,7 @@ class MultiAgentActor(nn.Module):
     :param share_groups: Agents that share one actor (lists of agent indices, every agent in one; None: no sharing).
         A shared actor reads its agent's own observation followed by the agent's one-hot id within the group.
     :param precision: Precision of the products (``"fp32"`` or ``"bf16"``, see :class:`GroupedMLP`).
+    :param large_layers: ``"per_group"`` or ``"batched"`` products of networks with a large layer (see :class:`GroupedMLP`).
     """
 
     mu: GroupedMLP
@@ -134,6 +135,7 @@ class MultiAgentActor(nn.Module):
         gumbel_temperature: float = 1.0,
         share_groups: list[list[int]] | None = None,
         precision: str = "fp32",
+        large_layers: str = "per_group",
     ):
         super().__init__()
         self.n_agents = layout.n_agents
@@ -149,6 +151,7 @@ class MultiAgentActor(nn.Module):
                 group_runs=np.repeat(np.arange(n_runs), layout.n_agents),
                 generators=generators,
                 precision=precision,
+                large_layers=large_layers,
             )
         else:
             check_share_groups(layout, share_groups)
@@ -164,6 +167,7 @@ class MultiAgentActor(nn.Module):
                 generators=generators,
                 param_index=(np.arange(n_runs)[:, None] * n_groups + shared.group_of[None, :]).ravel(),
                 precision=precision,
+                large_layers=large_layers,
             )
             self.register_buffer("obs_gather", th.as_tensor(shared.gather), persistent=False)
             self.register_buffer("agent_ids", th.as_tensor(shared.ids), persistent=False)
@@ -251,6 +255,7 @@ class MultiAgentCritic(nn.Module):
     :param generators: One torch generator per run for the initial weights (None: the global one).
     :param share_groups: Agents that share one critic (lists of agent indices; None: no sharing).
     :param precision: Precision of the products (``"fp32"`` or ``"bf16"``, see :class:`GroupedMLP`).
+    :param large_layers: ``"per_group"`` or ``"batched"`` products of networks with a large layer (see :class:`GroupedMLP`).
     """
 
     q_net: GroupedMLP
@@ -268,6 +273,7 @@ class MultiAgentCritic(nn.Module):
         generators: list[th.Generator] | None = None,
         share_groups: list[list[int]] | None = None,
         precision: str = "fp32",
+        large_layers: str = "per_group",
     ):
         super().__init__()
         self.n_agents = layout.n_agents
@@ -305,6 +311,7 @@ class MultiAgentCritic(nn.Module):
             group_blocks=np.repeat(np.arange(n_critics * n_runs), n_params),  # one block per (critic, run)
             param_index=param_index,
             precision=precision,
+            large_layers=large_layers,
         )
 
     def _with_ids(self, x: th.Tensor) -> th.Tensor:
@@ -365,6 +372,9 @@ class MADDPGPolicy(BasePolicy):
     :param precision: ``"fp32"`` (default) or ``"bf16"``: the networks' products in bfloat16 from float32 master
         weights, gradients and optimizer state. Opt-in, for CPUs with native bfloat16 GEMMs (AVX-512 BF16, AMX) and
         large networks; see ``benchmarks/throughput.py --bf16`` for its speed on the machine at hand.
+    :param large_layers: ``"per_group"`` (default) or ``"batched"``: how networks with a large layer (e.g. 400-300)
+        compute their products on the CPU (see :class:`~sb3_macb.common.grouped_mlp.GroupedMLP`); the faster one
+        depends on the CPU (``benchmarks/update_paths.py``), and they agree up to float32 rounding.
     :param intrinsic_critic: Also build a second set of critics (``critic_int``, its target and optimizer), the
         same architecture as the critics, that learns the exploration bonus's return (set by MADDPG).
     """
@@ -388,6 +398,7 @@ class MADDPGPolicy(BasePolicy):
         share_critics: list[list[int]] | None = None,
         precision: str = "fp32",
         intrinsic_critic: bool = False,
+        large_layers: str = "per_group",
     ):
         if normalize_images:
             raise ValueError("MADDPGPolicy works on vector observations: normalize_images must be False")
@@ -425,6 +436,9 @@ class MADDPGPolicy(BasePolicy):
         if precision not in PRECISIONS:
             raise ValueError(f"policy_kwargs precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         self.precision = precision
+        if large_layers not in LARGE_LAYER_PATHS:
+            raise ValueError(f"policy_kwargs large_layers must be one of {list(LARGE_LAYER_PATHS)}, got {large_layers!r}")
+        self.large_layers = large_layers
         self.intrinsic_critic = bool(intrinsic_critic)
         self._actor_kwargs: dict[str, Any] = dict(
             layout=agent_layout,
@@ -433,6 +447,7 @@ class MADDPGPolicy(BasePolicy):
             n_runs=n_runs,
             share_groups=share_actors,
             precision=precision,
+            large_layers=large_layers,
         )
         self._critic_kwargs: dict[str, Any] = dict(
             layout=agent_layout,
@@ -443,6 +458,7 @@ class MADDPGPolicy(BasePolicy):
             n_runs=n_runs,
             share_groups=share_critics,
             precision=precision,
+            large_layers=large_layers,
         )
         self._build(lr_schedule)
 
@@ -496,6 +512,7 @@ class MADDPGPolicy(BasePolicy):
                 share_critics=self.share_critics,
                 precision=self.precision,
                 intrinsic_critic=self.intrinsic_critic,
+                large_layers=self.large_layers,
             )
         )
         return data
