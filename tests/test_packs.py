@@ -1,5 +1,6 @@
 """Packs: K runs in one model, each the same experiment as a solo run with its seed."""
 
+import inspect
 import os
 
 import numpy as np
@@ -96,6 +97,18 @@ def test_large_layers_on_the_batched_path_keep_packs_bit_identical_to_solo_runs(
             assert th.equal(a, b), k
     with pytest.raises(ValueError, match="large_layers"):
         MADDPG("MlpPolicy", make_task_vec_env(COMM, 1), policy_kwargs=dict(large_layers="fast"))
+
+
+def test_get_run_carries_every_constructor_setting():
+    # each argument of MADDPG.__init__ is either kept as it is (_RUN_SETTINGS) or set for the run by get_run
+    per_run = {"policy", "env", "device", "seed", "n_runs", "run_seeds", "exploration", "action_noise",
+               "learning_starts", "replay_buffer_class", "stats_window_size", "_init_setup_model"}  # fmt: skip
+    arguments = set(inspect.signature(MADDPG.__init__).parameters) - {"self"}
+    assert set(MADDPG._RUN_SETTINGS) | per_run == arguments and not set(MADDPG._RUN_SETTINGS) & per_run
+    pack = MADDPG("MlpPolicy", make_task_vec_env(COMM, 2), n_runs=2, seed=0, gamma=0.9, tau=0.02, preactivation_reg=0.1,
+                  policy_kwargs=dict(net_arch=[8]))  # fmt: skip
+    run = pack.get_run(1)
+    assert (run.gamma, run.tau, run.preactivation_reg, run.run_seeds, run.seed) == (0.9, 0.02, 0.1, [1], 1)
 
 
 def test_a_run_handed_out_works_alone(tmp_path):

@@ -233,9 +233,7 @@ class MADDPG(TD3):
             raise TypeError(
                 f"replay_buffer_class must derive from sb3_macb.buffers.MultiAgentReplayBuffer, got {replay_buffer_class}"
             )
-        if run_seeds is None and seed is not None and isinstance(n_runs, (int, np.integer)) and n_runs >= 1:
-            run_seeds = [int(seed) + k for k in range(n_runs)]
-        self.pack = Pack(n_runs, run_seeds, exploration)
+        self.pack = Pack(n_runs, run_seeds, exploration, seed=seed)
         if seed is None and self.pack.seeds is not None:
             seed = self.pack.seeds[0]
         self.agent_layout: AgentLayout | None = None
@@ -299,7 +297,7 @@ class MADDPG(TD3):
         self.flush_denormal = flush_denormal
         self.preactivation_reg = float(preactivation_reg)
         if run_noises is not None and self.env is not None:
-            self.action_noise = self.pack.env_noise(list(run_noises), self.n_envs)
+            self.action_noise = self.pack.env_noise(run_noises, self.n_envs)
         if _init_setup_model:
             self._setup_model()
 
@@ -348,9 +346,9 @@ class MADDPG(TD3):
         ``k`` is seeded ``run_seeds[k] + j`` (for one run, ``seed + j`` as SB3 seeds it).
         """
         super().set_random_seed(seed)
-        seeds = self.pack.env_seeds(self.n_envs) if self.env is not None else None
-        if seeds is not None and self.env is not None:
-            venv: VecEnv = self.env
+        venv = self.env
+        seeds = None if venv is None else self.pack.env_seeds(self.n_envs)
+        if venv is not None and seeds is not None:
             while isinstance(venv, VecEnvWrapper):
                 venv = venv.venv
             set_next_reset_seeds(venv, seeds)  # one seed per env instead of seed + index
@@ -379,7 +377,7 @@ class MADDPG(TD3):
             unscaled = self._actor_actions(self._last_obs, gumbel)  # type: ignore[arg-type]
         scaled = self.policy.scale_action(unscaled)
         if action_noise is not None:
-            noise = self._draw_noise(action_noise, n_envs)
+            noise = self._draw_noise(action_noise, rngs)
             if discrete is not None:
                 noise[:, discrete] = 0.0  # action noise is for continuous agents
             scaled = np.clip(scaled + noise, -1, 1)
@@ -410,11 +408,16 @@ class MADDPG(TD3):
                 result[:, sl] = block
         return result
 
-    def _draw_noise(self, action_noise: ActionNoise, n_envs: int) -> np.ndarray:
-        """One noise vector per env, Gaussian and Ornstein-Uhlenbeck noise drawn from the env's run's generator."""
-        noises = action_noise.noises if isinstance(action_noise, VectorizedActionNoise) else [action_noise] * n_envs
+    def _draw_noise(self, action_noise: ActionNoise, rngs: list[np.random.Generator]) -> np.ndarray:
+        """
+        One noise vector per env, Gaussian and Ornstein-Uhlenbeck noise drawn from the env's run's generator.
+
+        :param action_noise: The model's noise (one process per env, or one for the single env).
+        :param rngs: Each env's run's generator (:meth:`Pack.env_rngs`).
+        """
+        noises = action_noise.noises if isinstance(action_noise, VectorizedActionNoise) else [action_noise] * len(rngs)
         draws = []
-        for rng, noise in zip(self.pack.env_rngs(n_envs), noises):
+        for rng, noise in zip(rngs, noises):
             if isinstance(noise, NormalActionNoise):
                 draws.append(rng.normal(noise._mu, noise._sigma))
             elif isinstance(noise, OrnsteinUhlenbeckActionNoise):

@@ -32,6 +32,7 @@ class Pack:
     :param exploration: The runs' exploration: an MACB or RND, a dict of its arguments, or None, for every run (each
         run gets its own copy), or a list of one per run (an object that appears more than once is copied, so that
         every run has its own hash matrix and count table).
+    :param seed: Without ``seeds``: run ``k`` is seeded ``seed + k`` (None: unseeded runs).
     """
 
     def __init__(
@@ -39,11 +40,14 @@ class Pack:
         n_runs: int = 1,
         seeds: list[int] | None = None,
         exploration: "ExplorationSetting | list[ExplorationSetting]" = None,
+        seed: int | None = None,
     ):
         if isinstance(n_runs, bool) or not isinstance(n_runs, (int, np.integer)) or n_runs < 1:
             raise ValueError(f"n_runs must be an integer >= 1, got {n_runs!r}")
         if seeds is not None and len(seeds) != n_runs:
             raise ValueError(f"run_seeds needs one seed per run ({n_runs}), got {seeds}")
+        if seeds is None and seed is not None:
+            seeds = [int(seed) + k for k in range(n_runs)]
         if isinstance(exploration, (list, tuple)):
             per_run, seen = [], set()
             for setting in exploration:

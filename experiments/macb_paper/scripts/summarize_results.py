@@ -107,6 +107,9 @@ def main() -> None:
                         help="any-step success (the paper's) or final-step success")  # fmt: skip
     parser.add_argument("--complete-only", action="store_true", help="leave out runs still in progress")
     args = parser.parse_args()
+    for value, name in ((args.window, "--window"), (args.final, "--final")):
+        if value < 1:
+            parser.error(f"{name} must be >= 1 (evaluations), got {value}")
     for folder in args.task_folders:
         print(f"### {os.path.basename(os.path.normpath(folder))}\n")
         print(summarize(folder, args.threshold, args.window, args.final, args.max_episodes, args.collisions, args.metric,

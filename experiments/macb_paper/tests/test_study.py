@@ -535,3 +535,11 @@ def test_reproduce_trains_with_the_library_of_its_own_checkout(tmp_path):
     done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 1 and "the worktree library was imported" in done.stderr, done.stderr
     assert not (tmp_path / "work").exists() and not (tmp_path / "out").exists()
+
+
+def test_summarize_refuses_a_window_below_one_in_one_line(tmp_path):
+    write_run(tmp_path / "v" / "seed_0" / "evaluations.npz", [0.1] * 6)
+    command = [sys.executable, str(STUDY / "scripts" / "summarize_results.py"), str(tmp_path), "--window", "0"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=STUDY)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1].endswith("--window must be >= 1 (evaluations), got 0")
