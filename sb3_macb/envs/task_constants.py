@@ -38,3 +38,10 @@ class TaskConstants:
 
 NAVIGATION = TaskConstants(size=0.125, n_landmarks=2, reward_radius=0.125, success_radius=0.25)
 COMMUNICATION = TaskConstants(size=0.075, n_landmarks=3, reward_radius=0.15, success_radius=0.15)
+
+# Sparse Spread (mpe2's simple_spread with a sparse team reward): agents of size 0.15 that collide, landmarks of
+# mpe2's default size 0.05, a landmark covered when an agent is within 0.1 (mpe2's capture radius), 25 steps
+SPREAD_AGENT_SIZE = 0.15
+SPREAD_LANDMARK_SIZE = 0.05
+SPREAD_COVER_RADIUS = 0.1
+SPREAD_MAX_CYCLES = 25

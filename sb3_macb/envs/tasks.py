@@ -2,7 +2,8 @@
 The paper's two tasks, built on mpe2's particle world (its physics, seeding and rendering are reused):
 
 - 2-Agent Navigation: two agents must cover two landmarks (sparse reward, collisions penalised);
-- Communicative Navigation: a static speaker tells a listener which of three landmarks to reach.
+- Communicative Navigation: a static speaker tells a listener which of three landmarks to reach;
+- Sparse Spread: mpe2's simple_spread (N agents must cover N landmarks) with a success-only team reward.
 
 Actions are continuous: movement is a 2-D force command in [-1, 1] (force = 5 * action), communication a 3-D
 vector in [0, 1]. Every agent's info carries, per step, ``success`` (the success condition holds now),
@@ -30,6 +31,9 @@ from sb3_macb.envs.task_constants import (
     GOAL_COLORS,
     MAX_CYCLES,
     NAVIGATION,
+    SPREAD_AGENT_SIZE,
+    SPREAD_COVER_RADIUS,
+    SPREAD_LANDMARK_SIZE,
 )
 
 
@@ -229,6 +233,66 @@ class CommunicativeNavigationScenario(TaskScenario):
             return self.goal.color.astype(np.float32)
         landmarks = [lm.state.p_pos - listener.state.p_pos for lm in world.landmarks]
         return np.concatenate([listener.state.p_vel, *landmarks, speaker.state.c]).astype(np.float32)
+
+
+class SparseSpreadScenario(TaskScenario):
+    """
+    mpe2's simple_spread with a sparse team reward: ``n_agents`` agents (size 0.15, colliding softly) and as many
+    landmarks (size 0.05). Shared reward: 0 when every landmark has an agent within ``cover_radius``, else -1
+    (collisions are counted in the infos, not penalized). Success: every landmark covered. An agent observes its
+    velocity and position, every landmark and every other agent relative to it (mpe2's observation without the
+    silent agents' zero messages).
+
+    :param n_agents: Number of agents and of landmarks (at least 2).
+    :param cover_radius: A landmark is covered when an agent is within this distance of it.
+    :param terminate_on_success: End the episode on success.
+    """
+
+    def __init__(self, n_agents: int = 3, cover_radius: float = SPREAD_COVER_RADIUS, terminate_on_success: bool = False):
+        super().__init__(terminate_on_success)
+        if int(n_agents) != n_agents or n_agents < 2:
+            raise ValueError(f"n_agents must be an integer >= 2, got {n_agents!r}")
+        if not cover_radius > 0:
+            raise ValueError(f"cover_radius must be > 0, got {cover_radius!r}")
+        self.n_agents = int(n_agents)
+        self.cover_radius = float(cover_radius)
+
+    def make_world(self) -> World:
+        world = self._new_world(dim_c=2)
+        world.agents = [Agent() for _ in range(self.n_agents)]
+        for i, agent in enumerate(world.agents):
+            agent.name = f"agent_{i}"
+            agent.collide = True
+            agent.silent = True
+            agent.size = SPREAD_AGENT_SIZE
+        self._add_landmarks(world, self.n_agents, SPREAD_LANDMARK_SIZE)
+        return world
+
+    def reset_world(self, world: World, np_random: Any) -> None:
+        for agent in world.agents:
+            agent.color = np.array([0.35, 0.35, 0.85])
+        for landmark in world.landmarks:
+            landmark.color = np.array([0.25, 0.25, 0.25])
+        self._place_randomly(world, np_random)
+
+    def _nearest_distances(self, world: World) -> np.ndarray:
+        agents = np.array([a.state.p_pos for a in world.agents])
+        landmarks = np.array([lm.state.p_pos for lm in world.landmarks])
+        return np.linalg.norm(landmarks[:, None, :] - agents[None, :, :], axis=-1).min(axis=1)
+
+    def shared_reward(self, world: World) -> float:
+        return 0.0 if self.success(world) else -1.0
+
+    def success(self, world: World) -> bool:
+        return bool(np.all(self._nearest_distances(world) <= self.cover_radius))
+
+    def collisions(self, world: World) -> int:
+        return _overlapping_pairs(world.agents)
+
+    def observation(self, agent: Agent, world: World) -> np.ndarray:
+        landmarks = [lm.state.p_pos - agent.state.p_pos for lm in world.landmarks]
+        others = [other.state.p_pos - agent.state.p_pos for other in world.agents if other is not agent]
+        return np.concatenate([agent.state.p_vel, agent.state.p_pos, *landmarks, *others]).astype(np.float32)
 
 
 class TaskEnv(SimpleEnv, EzPickle):

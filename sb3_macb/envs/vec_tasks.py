@@ -35,8 +35,10 @@ from sb3_macb.envs.task_constants import (
     MAX_CYCLES,
     NAVIGATION,
 )
+from sb3_macb.envs.vec_spread import SpreadVecEnv
 
 TASK_IDS = ("sb3_macb/TwoAgentNavigation-v0", "sb3_macb/CommunicativeNavigation-v0")
+SPREAD_ID = "sb3_macb/SparseSpread-v0"
 
 
 class TaskVecEnv(BatchedVecEnv):
@@ -221,7 +223,7 @@ def make_task_vec_env(env_id: str, n_envs: int, env_kwargs: dict[str, Any] | Non
     ``n_envs`` copies of a task id as one :class:`TaskVecEnv` with SB3's ``VecMonitor`` (episode returns and
     lengths in ``info["episode"]``); other env ids as SB3's ``make_vec_env`` builds them.
 
-    :param env_id: A gymnasium id (the two tasks are vectorized).
+    :param env_id: A gymnasium id (the paper's two tasks and Sparse Spread are vectorized).
     :param n_envs: Number of envs.
     :param env_kwargs: Keyword arguments of the env (the tasks': ``max_cycles``, ``reward``, the radii, ...).
     """
@@ -230,6 +232,9 @@ def make_task_vec_env(env_id: str, n_envs: int, env_kwargs: dict[str, Any] | Non
         kwargs.pop("render_mode", None)
         task = "navigation" if env_id == TASK_IDS[0] else "communication"
         return VecMonitor(TaskVecEnv(task, n_envs, **kwargs))
+    if env_id == SPREAD_ID and kwargs.get("render_mode") is None:
+        kwargs.pop("render_mode", None)
+        return VecMonitor(SpreadVecEnv(n_envs, **kwargs))
     from stable_baselines3.common.env_util import make_vec_env
 
     return make_vec_env(env_id, n_envs=n_envs, env_kwargs=kwargs)
