@@ -220,8 +220,8 @@ class TaskVecEnv(BatchedVecEnv):
 
 def make_task_vec_env(env_id: str, n_envs: int, env_kwargs: dict[str, Any] | None = None) -> VecEnv:
     """
-    ``n_envs`` copies of a task id as one :class:`TaskVecEnv` with SB3's ``VecMonitor`` (episode returns and
-    lengths in ``info["episode"]``); other env ids as SB3's ``make_vec_env`` builds them.
+    ``n_envs`` copies of a task id as one :class:`TaskVecEnv` (Sparse Spread: :class:`SpreadVecEnv`) with SB3's
+    ``VecMonitor`` (episode returns and lengths in ``info["episode"]``); other env ids as SB3's ``make_vec_env`` builds them.
 
     :param env_id: A gymnasium id (the paper's two tasks and Sparse Spread are vectorized).
     :param n_envs: Number of envs.
