@@ -97,29 +97,17 @@ def _overlapping_pairs(agents: list[Agent]) -> int:
     return count
 
 
-class TwoAgentNavigationScenario(TaskScenario):
+class CoveringScenario(TaskScenario):
     """
-    Two agents, two landmarks, all of size 0.125. Shared reward: each landmark whose nearest agent is farther than
-    ``reward_radius`` costs -1 and each colliding agent costs -1 (with ``collision_penalty``), the sum divided
-    by 2 and by the number of agents, and every agent receives the sum over agents: range [-1.5, 0]. Success:
-    every landmark has an agent within ``success_radius``.
+    Agents that collide and must cover landmarks: the world, the random start, the landmarks' nearest-agent
+    distances, the collision count and each agent's observation (velocity, position, every landmark and every other
+    agent relative to it). Subclasses set ``n_agents``, ``n_landmarks``, ``agent_size`` and ``landmark_size``.
     """
 
-    n_agents = 2
-    n_landmarks = NAVIGATION.n_landmarks
-    size = NAVIGATION.size
-
-    def __init__(
-        self,
-        reward_radius: float = NAVIGATION.reward_radius,
-        success_radius: float = NAVIGATION.success_radius,
-        collision_penalty: bool = True,
-        terminate_on_success: bool = False,
-    ):
-        super().__init__(terminate_on_success)
-        self.reward_radius = reward_radius
-        self.success_radius = success_radius
-        self.collision_penalty = collision_penalty
+    n_agents: int
+    n_landmarks: int
+    agent_size: float
+    landmark_size: float
 
     def make_world(self) -> World:
         world = self._new_world(dim_c=2)
@@ -128,8 +116,8 @@ class TwoAgentNavigationScenario(TaskScenario):
             agent.name = f"agent_{i}"
             agent.collide = True
             agent.silent = True
-            agent.size = self.size
-        self._add_landmarks(world, self.n_landmarks, self.size)
+            agent.size = self.agent_size
+        self._add_landmarks(world, self.n_landmarks, self.landmark_size)
         return world
 
     def reset_world(self, world: World, np_random: Any) -> None:
@@ -144,6 +132,39 @@ class TwoAgentNavigationScenario(TaskScenario):
         landmarks = np.array([lm.state.p_pos for lm in world.landmarks])
         return np.linalg.norm(landmarks[:, None, :] - agents[None, :, :], axis=-1).min(axis=1)
 
+    def collisions(self, world: World) -> int:
+        return _overlapping_pairs(world.agents)
+
+    def observation(self, agent: Agent, world: World) -> np.ndarray:
+        landmarks = [lm.state.p_pos - agent.state.p_pos for lm in world.landmarks]
+        others = [other.state.p_pos - agent.state.p_pos for other in world.agents if other is not agent]
+        return np.concatenate([agent.state.p_vel, agent.state.p_pos, *landmarks, *others]).astype(np.float32)
+
+
+class TwoAgentNavigationScenario(CoveringScenario):
+    """
+    Two agents, two landmarks, all of size 0.125. Shared reward: each landmark whose nearest agent is farther than
+    ``reward_radius`` costs -1 and each colliding agent costs -1 (with ``collision_penalty``), the sum divided
+    by 2 and by the number of agents, and every agent receives the sum over agents: range [-1.5, 0]. Success:
+    every landmark has an agent within ``success_radius``.
+    """
+
+    n_agents = 2
+    n_landmarks = NAVIGATION.n_landmarks
+    size = agent_size = landmark_size = NAVIGATION.size
+
+    def __init__(
+        self,
+        reward_radius: float = NAVIGATION.reward_radius,
+        success_radius: float = NAVIGATION.success_radius,
+        collision_penalty: bool = True,
+        terminate_on_success: bool = False,
+    ):
+        super().__init__(terminate_on_success)
+        self.reward_radius = reward_radius
+        self.success_radius = success_radius
+        self.collision_penalty = collision_penalty
+
     def shared_reward(self, world: World) -> float:
         n_agents = len(world.agents)
         uncovered = int(np.sum(self._nearest_distances(world) > self.reward_radius))
@@ -155,14 +176,6 @@ class TwoAgentNavigationScenario(TaskScenario):
 
     def success(self, world: World) -> bool:
         return bool(np.all(self._nearest_distances(world) <= self.success_radius))
-
-    def collisions(self, world: World) -> int:
-        return _overlapping_pairs(world.agents)
-
-    def observation(self, agent: Agent, world: World) -> np.ndarray:
-        landmarks = [lm.state.p_pos - agent.state.p_pos for lm in world.landmarks]
-        others = [other.state.p_pos - agent.state.p_pos for other in world.agents if other is not agent]
-        return np.concatenate([agent.state.p_vel, agent.state.p_pos, *landmarks, *others]).astype(np.float32)
 
 
 class CommunicativeNavigationScenario(TaskScenario):
@@ -235,7 +248,7 @@ class CommunicativeNavigationScenario(TaskScenario):
         return np.concatenate([listener.state.p_vel, *landmarks, speaker.state.c]).astype(np.float32)
 
 
-class SparseSpreadScenario(TaskScenario):
+class SparseSpreadScenario(CoveringScenario):
     """
     mpe2's simple_spread with a sparse team reward: ``n_agents`` agents (size 0.15, colliding softly) and as many
     landmarks (size 0.05). Shared reward: 0 when every landmark has an agent within ``cover_radius``, else -1
@@ -254,45 +267,15 @@ class SparseSpreadScenario(TaskScenario):
             raise ValueError(f"n_agents must be an integer >= 2, got {n_agents!r}")
         if not cover_radius > 0:
             raise ValueError(f"cover_radius must be > 0, got {cover_radius!r}")
-        self.n_agents = int(n_agents)
+        self.n_agents = self.n_landmarks = int(n_agents)
+        self.agent_size, self.landmark_size = SPREAD_AGENT_SIZE, SPREAD_LANDMARK_SIZE
         self.cover_radius = float(cover_radius)
-
-    def make_world(self) -> World:
-        world = self._new_world(dim_c=2)
-        world.agents = [Agent() for _ in range(self.n_agents)]
-        for i, agent in enumerate(world.agents):
-            agent.name = f"agent_{i}"
-            agent.collide = True
-            agent.silent = True
-            agent.size = SPREAD_AGENT_SIZE
-        self._add_landmarks(world, self.n_agents, SPREAD_LANDMARK_SIZE)
-        return world
-
-    def reset_world(self, world: World, np_random: Any) -> None:
-        for agent in world.agents:
-            agent.color = np.array([0.35, 0.35, 0.85])
-        for landmark in world.landmarks:
-            landmark.color = np.array([0.25, 0.25, 0.25])
-        self._place_randomly(world, np_random)
-
-    def _nearest_distances(self, world: World) -> np.ndarray:
-        agents = np.array([a.state.p_pos for a in world.agents])
-        landmarks = np.array([lm.state.p_pos for lm in world.landmarks])
-        return np.linalg.norm(landmarks[:, None, :] - agents[None, :, :], axis=-1).min(axis=1)
 
     def shared_reward(self, world: World) -> float:
         return 0.0 if self.success(world) else -1.0
 
     def success(self, world: World) -> bool:
         return bool(np.all(self._nearest_distances(world) <= self.cover_radius))
-
-    def collisions(self, world: World) -> int:
-        return _overlapping_pairs(world.agents)
-
-    def observation(self, agent: Agent, world: World) -> np.ndarray:
-        landmarks = [lm.state.p_pos - agent.state.p_pos for lm in world.landmarks]
-        others = [other.state.p_pos - agent.state.p_pos for other in world.agents if other is not agent]
-        return np.concatenate([agent.state.p_vel, agent.state.p_pos, *landmarks, *others]).astype(np.float32)
 
 
 class TaskEnv(SimpleEnv, EzPickle):
