@@ -12,7 +12,6 @@ import zipfile
 import numpy as np
 import pytest
 import torch as th
-from stable_baselines3.common.env_util import make_vec_env
 
 import sb3_macb
 from sb3_macb import MADDPG
@@ -262,38 +261,6 @@ def test_a_save_killed_at_any_moment_leaves_the_previous_file(tmp_path):
         MADDPG.load(model_path)
     leftovers = [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
     assert len(leftovers) <= 8  # a killed write leaves its temporary file, never a damaged target
-
-
-@pytest.mark.parametrize(
-    "env_id, kwargs",
-    [(COMM, {}), (COMM, {"reward": "distance"}), (NAV, {}), (NAV, {"terminate_on_success": True, "success_radius": 0.6}),
-     # every step a success, every step the last: a success at the time limit is a termination in both
-     (NAV, {"terminate_on_success": True, "success_radius": 3.0, "max_cycles": 1})],
-)
-def test_the_vectorized_task_env_steps_exactly_as_the_mpe2_based_one(env_id, kwargs):
-    reference = make_vec_env(env_id, n_envs=3, env_kwargs=kwargs)
-    vectorized = make_task_vec_env(env_id, 3, kwargs)
-    reference.seed(7)
-    vectorized.seed(7)
-    assert np.array_equal(reference.reset(), vectorized.reset())
-    rng = np.random.default_rng(0)
-    dones_seen = 0
-    for _ in range(60):
-        actions = rng.uniform(-1, 1, (3, reference.action_space.shape[0])).astype(np.float32)
-        (o1, r1, d1, i1), (o2, r2, d2, i2) = reference.step(actions), vectorized.step(actions)
-        assert np.array_equal(o1, o2) and np.array_equal(r1, r2) and np.array_equal(d1, d2)
-        dones_seen += int(d1.sum())
-        for a, b in zip(i1, i2):
-            assert np.array_equal(a["agent_rewards"], b["agent_rewards"]) and a.get("is_success") == b.get("is_success")
-            assert a.get("TimeLimit.truncated", False) == b.get("TimeLimit.truncated", False)
-            assert ("terminal_observation" in a) == ("terminal_observation" in b)
-            first_a, first_b = next(iter(a["agent_infos"].values())), next(iter(b["agent_infos"].values()))
-            assert {k: first_a[k] for k in first_b} == first_b
-            if d1.any() and "terminal_observation" in a:
-                assert np.array_equal(a["terminal_observation"], b["terminal_observation"])
-    assert dones_seen >= 3
-    with pytest.raises(ValueError, match="NaN"):
-        vectorized.step(np.full((3, reference.action_space.shape[0]), np.nan, dtype=np.float32))
 
 
 def test_hyperparameter_strings_are_parsed_without_running_code(tmp_path):

@@ -5,8 +5,8 @@ Communicative Navigation, the paper's partially observed task, in mpe2's style.
     env = communicative_navigation_v0.parallel_env(reward="sparse")
 
 A static speaker (``speaker_0``, observation 3: the goal's colour; action 3: a message in [0, 1]) guides a silent
-listener (``listener_0``, observation 11: velocity, the three landmarks relative to it, the message; action: a
-2-D force command in [-1, 1]) to the goal landmark.
+listener (``listener_0``, observation 2 + 2 * n_landmarks + 3: velocity, the landmarks relative to it, the message;
+action: a 2-D force command in [-1, 1]) to the goal landmark. The paper's task has three landmarks (observation 11).
 """
 
 from typing import Any
@@ -24,6 +24,8 @@ def parallel_env(
     success_radius: float = COMMUNICATION.success_radius,
     terminate_on_success: bool = False,
     render_mode: str | None = None,
+    n_landmarks: int = COMMUNICATION.n_landmarks,
+    half_width: float = 1.0,
 ) -> TaskParallelEnv:
     """
     :param max_cycles: Steps per episode.
@@ -33,9 +35,13 @@ def parallel_env(
     :param success_radius: The episode succeeds when the listener comes within this distance of the goal.
     :param terminate_on_success: End the episode on success (the paper's episodes run on).
     :param render_mode: None, ``"rgb_array"`` or ``"human"``.
+    :param n_landmarks: Number of landmarks (the paper's 3; more for a harder task).
+    :param half_width: Every entity starts uniformly in [-half_width, half_width]^2 (the paper's 1).
     :return: The parallel environment (``env()`` gives the AEC version).
     """
-    scenario = CommunicativeNavigationScenario(reward, reward_radius, success_radius, terminate_on_success)
+    scenario = CommunicativeNavigationScenario(
+        reward, reward_radius, success_radius, terminate_on_success, n_landmarks, half_width
+    )
     return TaskParallelEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=NAME)
 
 

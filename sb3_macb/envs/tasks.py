@@ -1,8 +1,9 @@
 """
 The paper's two tasks, built on mpe2's particle world (its physics, seeding and rendering are reused):
 
-- 2-Agent Navigation: two agents must cover two landmarks (sparse reward, collisions penalised);
-- Communicative Navigation: a static speaker tells a listener which of three landmarks to reach;
+- 2-Agent Navigation: two agents must cover two landmarks (sparse reward, collisions penalised; or success-only);
+- Communicative Navigation: a static speaker tells a listener which of three landmarks to reach (or of more, in a
+  larger arena);
 - Sparse Spread: mpe2's simple_spread (N agents must cover N landmarks) with a success-only team reward.
 
 Actions are continuous: movement is a 2-D force command in [-1, 1] (force = 5 * action), communication a 3-D
@@ -28,12 +29,14 @@ from sb3_macb.envs.task_constants import (
     DAMPING,
     DT,
     FORCE_SCALE,
-    GOAL_COLORS,
     MAX_CYCLES,
     NAVIGATION,
+    NAVIGATION_REWARDS,
     SPREAD_AGENT_SIZE,
     SPREAD_COVER_RADIUS,
     SPREAD_LANDMARK_SIZE,
+    check_communication_settings,
+    goal_colors,
 )
 
 
@@ -79,10 +82,10 @@ class TaskScenario(BaseScenario):
             landmark.size = size
 
     @staticmethod
-    def _place_randomly(world: World, np_random: Any) -> None:
-        """Every entity uniformly in [-1, 1]^2, at rest, silent."""
+    def _place_randomly(world: World, np_random: Any, half_width: float = 1.0) -> None:
+        """Every entity uniformly in [-half_width, half_width]^2, at rest, silent."""
         for entity in world.entities:
-            entity.state.p_pos = np_random.uniform(-1, +1, world.dim_p)
+            entity.state.p_pos = np_random.uniform(-half_width, +half_width, world.dim_p)
             entity.state.p_vel = np.zeros(world.dim_p)
         for agent in world.agents:
             agent.state.c = np.zeros(world.dim_c)
@@ -143,10 +146,11 @@ class CoveringScenario(TaskScenario):
 
 class TwoAgentNavigationScenario(CoveringScenario):
     """
-    Two agents, two landmarks, all of size 0.125. Shared reward: each landmark whose nearest agent is farther than
-    ``reward_radius`` costs -1 and each colliding agent costs -1 (with ``collision_penalty``), the sum divided
-    by 2 and by the number of agents, and every agent receives the sum over agents: range [-1.5, 0]. Success:
-    every landmark has an agent within ``success_radius``.
+    Two agents, two landmarks, all of size 0.125. Success: every landmark has an agent within ``success_radius``.
+    Shared reward: ``"sparse"`` (the paper's): each landmark whose nearest agent is farther than ``reward_radius``
+    costs -1 and each colliding agent costs -1 (with ``collision_penalty``), the sum divided by 2 and by the number
+    of agents, and every agent receives the sum over agents: range [-1.5, 0]. ``"success"``: 0 on success, else -1
+    (``reward_radius`` and ``collision_penalty`` play no part; collisions are still counted in the infos).
     """
 
     n_agents = 2
@@ -159,13 +163,19 @@ class TwoAgentNavigationScenario(CoveringScenario):
         success_radius: float = NAVIGATION.success_radius,
         collision_penalty: bool = True,
         terminate_on_success: bool = False,
+        reward: str = "sparse",
     ):
         super().__init__(terminate_on_success)
+        if reward not in NAVIGATION_REWARDS:
+            raise ValueError(f"reward must be one of {NAVIGATION_REWARDS} for 2-Agent Navigation, got {reward!r}")
+        self.reward_type = reward
         self.reward_radius = reward_radius
         self.success_radius = success_radius
         self.collision_penalty = collision_penalty
 
     def shared_reward(self, world: World) -> float:
+        if self.reward_type == "success":
+            return 0.0 if self.success(world) else -1.0
         n_agents = len(world.agents)
         uncovered = int(np.sum(self._nearest_distances(world) > self.reward_radius))
         # every agent pays for every uncovered landmark, and each agent in a collision pays for it
@@ -181,13 +191,14 @@ class TwoAgentNavigationScenario(CoveringScenario):
 class CommunicativeNavigationScenario(TaskScenario):
     """
     A static speaker sees the goal landmark's colour and sends a 3-D message; a silent listener sees its velocity,
-    the three landmarks relative to it and the message, and must reach the goal. All entities have size 0.075 and
-    do not collide. Shared reward: ``"sparse"``: 0 within ``reward_radius`` of the goal, else -1; ``"distance"``:
-    minus the squared distance to the goal. Success: the listener within ``success_radius`` of the goal.
+    the landmarks relative to it and the message, and must reach the goal. All entities have size 0.075 and do not
+    collide. Shared reward: ``"sparse"``: 0 within ``reward_radius`` of the goal, else -1; ``"distance"``: minus
+    the squared distance to the goal. Success: the listener within ``success_radius`` of the goal. The paper's task
+    has three landmarks in [-1, 1]^2; ``n_landmarks`` and ``half_width`` give a harder one (colours from
+    :func:`~sb3_macb.envs.task_constants.goal_colors`).
     """
 
     size = COMMUNICATION.size
-    colors = tuple(GOAL_COLORS)
 
     def __init__(
         self,
@@ -195,10 +206,14 @@ class CommunicativeNavigationScenario(TaskScenario):
         reward_radius: float = COMMUNICATION.reward_radius,
         success_radius: float = COMMUNICATION.success_radius,
         terminate_on_success: bool = False,
+        n_landmarks: int = COMMUNICATION.n_landmarks,
+        half_width: float = 1.0,
     ):
         super().__init__(terminate_on_success)
-        if reward not in ("sparse", "distance"):
-            raise ValueError(f"reward must be 'sparse' or 'distance', got {reward!r}")
+        check_communication_settings(reward, n_landmarks, half_width)
+        self.n_landmarks = int(n_landmarks)
+        self.half_width = float(half_width)
+        self.colors = tuple(goal_colors(self.n_landmarks))
         self.reward_type = reward
         self.reward_radius = reward_radius
         self.success_radius = success_radius
@@ -214,7 +229,7 @@ class CommunicativeNavigationScenario(TaskScenario):
         for agent in world.agents:
             agent.collide = False
             agent.size = self.size
-        self._add_landmarks(world, COMMUNICATION.n_landmarks, self.size)
+        self._add_landmarks(world, self.n_landmarks, self.size)
         return world
 
     def reset_world(self, world: World, np_random: Any) -> None:
@@ -224,7 +239,7 @@ class CommunicativeNavigationScenario(TaskScenario):
         for agent in world.agents:
             agent.color = np.array([0.25, 0.25, 0.25])
         world.agents[1].color = self.goal.color + 0.45
-        self._place_randomly(world, np_random)
+        self._place_randomly(world, np_random, self.half_width)
 
     def _goal_distance(self, world: World) -> float:
         assert self.goal is not None

@@ -1,5 +1,5 @@
 """
-2-Agent Navigation (sparse reward), the paper's fully observed task, in mpe2's style.
+2-Agent Navigation (sparse reward, or success-only), the paper's fully observed task, in mpe2's style.
 
     from sb3_macb.envs import two_agent_navigation_v0
     env = two_agent_navigation_v0.parallel_env(max_cycles=20)
@@ -23,6 +23,7 @@ def parallel_env(
     collision_penalty: bool = True,
     terminate_on_success: bool = False,
     render_mode: str | None = None,
+    reward: str = "sparse",
 ) -> TaskParallelEnv:
     """
     :param max_cycles: Steps per episode.
@@ -31,9 +32,11 @@ def parallel_env(
     :param collision_penalty: Whether colliding agents are penalised.
     :param terminate_on_success: End the episode on success (the paper's episodes run on).
     :param render_mode: None, ``"rgb_array"`` or ``"human"``.
+    :param reward: ``"sparse"`` (the paper's: uncovered landmarks and collisions cost) or ``"success"`` (0 when
+        every landmark has an agent within ``success_radius``, else -1).
     :return: The parallel environment (``env()`` gives the AEC version).
     """
-    scenario = TwoAgentNavigationScenario(reward_radius, success_radius, collision_penalty, terminate_on_success)
+    scenario = TwoAgentNavigationScenario(reward_radius, success_radius, collision_penalty, terminate_on_success, reward)
     return TaskParallelEnv(scenario, max_cycles=max_cycles, render_mode=render_mode, name=NAME)
 
 

@@ -1,7 +1,7 @@
 """
 Sparse Spread as one vectorized SB3 ``VecEnv``: N copies of :mod:`sb3_macb.envs.sparse_spread_v0` stepped in
 numpy arrays, with the same physics, observations, rewards and infos as the mpe2-based env (the tests compare
-them step by step), and a scripted reference policy.
+them step by step). :func:`sb3_macb.envs.scripted.scripted_actions` is its reference policy.
 
     from sb3_macb.envs.vec_tasks import make_task_vec_env
     venv = make_task_vec_env("sb3_macb/SparseSpread-v0", n_envs=10, env_kwargs={"n_agents": 6})
@@ -14,8 +14,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from sb3_macb.common.private_apis import next_reset_seeds
-from sb3_macb.envs.batched import BatchedVecEnv
+from sb3_macb.envs.batched import ParticleVecEnv
 from sb3_macb.envs.joint_env import AgentLayout
 from sb3_macb.envs.task_constants import (
     CONTACT_FORCE,
@@ -29,7 +28,7 @@ from sb3_macb.envs.task_constants import (
 )
 
 
-class SpreadVecEnv(BatchedVecEnv):
+class SpreadVecEnv(ParticleVecEnv):
     """
     ``n_envs`` copies of Sparse Spread, stepped together.
 
@@ -82,15 +81,6 @@ class SpreadVecEnv(BatchedVecEnv):
         self.success_ever[i] = False
         self.episode_collisions[i] = 0
 
-    def reset(self) -> np.ndarray:
-        for i, seed in enumerate(next_reset_seeds(self)):
-            if seed is not None:
-                self.rngs[i] = seeding.np_random(seed)[0]
-            self._reset_env(i)
-        self._reset_seeds()
-        self._reset_options()
-        return self._observations()
-
     def _observations(self, envs: Any = slice(None)) -> np.ndarray:
         n = self.n_agents
         pos, vel = self.pos[envs], self.vel[envs]
@@ -128,56 +118,4 @@ class SpreadVecEnv(BatchedVecEnv):
             overlapping += np.linalg.norm(pos[:, a] - pos[:, b], axis=-1) < 2 * SPREAD_AGENT_SIZE
 
         success = np.all(self.nearest_distances() <= self.cover_radius, axis=1)
-        rewards = np.where(success, 0.0, -1.0)
-        self.steps += 1
-        self.success_ever |= success
-        self.episode_collisions += overlapping
-        terminated = success & self.terminate_on_success
-        truncated = (self.steps >= self.max_cycles) & ~terminated
-        dones = terminated | truncated
-        obs = self._observations()
-        infos: list[dict[str, Any]] = []
-        for i in range(self.num_envs):
-            agent_info = {
-                "success": bool(success[i]),
-                "is_success": bool(self.success_ever[i]),
-                "collisions": int(overlapping[i]),
-                "episode_collisions": int(self.episode_collisions[i]),
-            }
-            info = {
-                "agent_rewards": np.full(n, rewards[i], dtype=np.float32),
-                "agent_infos": {agent: agent_info for agent in self.agent_layout.agents},
-                "is_success": bool(self.success_ever[i]),
-                "TimeLimit.truncated": bool(truncated[i]),
-            }
-            if dones[i]:
-                info["terminal_observation"] = obs[i].copy()  # (the row is overwritten by the reset below)
-                self._reset_env(i)
-            infos.append(info)
-        if dones.any():
-            obs[dones] = self._observations(dones)
-        return obs, rewards.astype(np.float32), dones, infos
-
-
-def scripted_spread_actions(venv: SpreadVecEnv, gain: float = 10.0, damping: float = 5.0) -> np.ndarray:
-    """
-    A reference policy for Sparse Spread from the env's state: the assignment of agents to landmarks with the
-    smallest total distance (over every permutation, so for small teams), and for each agent a proportional-
-    derivative force toward its landmark, clipped to the action bounds. It ignores the agents' contact, so it fails
-    mostly where two landmarks lie closer than two agents can sit (0.3).
-
-    :param venv: The env whose current state is read.
-    :param gain: Force per unit of distance to the target.
-    :param damping: Force per unit of velocity, against it.
-    :return: Joint actions, shape (n_envs, 2 * n_agents).
-    """
-    n = venv.n_agents
-    agents, landmarks = venv.pos[:, :n], venv.pos[:, n:]
-    distances = np.linalg.norm(landmarks[:, :, None, :] - agents[:, None, :, :], axis=-1)  # (envs, landmark, agent)
-    perms = np.array(list(itertools.permutations(range(n))))  # perms[p, j]: the agent sent to landmark j
-    costs = distances[:, np.arange(n), perms].sum(axis=-1)  # (envs, perms)
-    best = perms[np.argmin(costs, axis=1)]  # (envs, n)
-    targets = np.empty_like(agents)
-    targets[np.arange(venv.num_envs)[:, None], best] = landmarks
-    actions = gain * (targets - agents) - damping * venv.vel
-    return np.clip(actions, -1.0, 1.0).reshape(venv.num_envs, 2 * n).astype(np.float32)
+        return self._end_step(np.where(success, 0.0, -1.0), success, overlapping)

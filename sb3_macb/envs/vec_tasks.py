@@ -21,8 +21,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-from sb3_macb.common.private_apis import next_reset_seeds
-from sb3_macb.envs.batched import BatchedVecEnv
+from sb3_macb.envs.batched import ParticleVecEnv
 from sb3_macb.envs.joint_env import AgentLayout
 from sb3_macb.envs.task_constants import (
     COMMUNICATION,
@@ -31,9 +30,11 @@ from sb3_macb.envs.task_constants import (
     DAMPING,
     DT,
     FORCE_SCALE,
-    GOAL_COLORS,
     MAX_CYCLES,
     NAVIGATION,
+    NAVIGATION_REWARDS,
+    check_communication_settings,
+    goal_colors,
 )
 from sb3_macb.envs.vec_spread import SpreadVecEnv
 
@@ -41,18 +42,21 @@ TASK_IDS = ("sb3_macb/TwoAgentNavigation-v0", "sb3_macb/CommunicativeNavigation-
 SPREAD_ID = "sb3_macb/SparseSpread-v0"
 
 
-class TaskVecEnv(BatchedVecEnv):
+class TaskVecEnv(ParticleVecEnv):
     """
     ``n_envs`` copies of one of the paper's tasks, stepped together.
 
     :param task: ``"navigation"`` (2-Agent Navigation) or ``"communication"`` (Communicative Navigation).
     :param n_envs: Number of copies.
     :param max_cycles: Steps per episode.
-    :param reward: Communicative Navigation: ``"sparse"`` or ``"distance"``.
+    :param reward: 2-Agent Navigation: ``"sparse"`` (the paper's) or ``"success"``; Communicative Navigation:
+        ``"sparse"`` or ``"distance"``.
     :param reward_radius: The sparse reward's radius (0.125 for navigation, 0.15 for communication when None).
     :param success_radius: The success radius (0.25 for navigation, 0.15 for communication when None).
     :param collision_penalty: Navigation: each colliding agent costs -1.
     :param terminate_on_success: End an episode on success.
+    :param n_landmarks: Communicative Navigation: number of landmarks (the paper's 3).
+    :param half_width: Communicative Navigation: entities start uniformly in [-half_width, half_width]^2.
     """
 
     def __init__(
@@ -65,11 +69,22 @@ class TaskVecEnv(BatchedVecEnv):
         success_radius: float | None = None,
         collision_penalty: bool = True,
         terminate_on_success: bool = False,
+        n_landmarks: int | None = None,
+        half_width: float | None = None,
     ):
         if task not in ("navigation", "communication"):
             raise ValueError(f"task must be 'navigation' or 'communication', got {task!r}")
-        if reward not in ("sparse", "distance"):
-            raise ValueError(f"reward must be 'sparse' or 'distance', got {reward!r}")
+        nav = task == "navigation"
+        if nav:
+            if reward not in NAVIGATION_REWARDS:
+                raise ValueError(f"reward must be one of {NAVIGATION_REWARDS} for 2-Agent Navigation, got {reward!r}")
+            for key, value in (("n_landmarks", n_landmarks), ("half_width", half_width)):
+                if value is not None:
+                    raise ValueError(f"{key} is a setting of Communicative Navigation, not of 2-Agent Navigation")
+        n_landmarks = COMMUNICATION.n_landmarks if n_landmarks is None else n_landmarks
+        half_width = 1.0 if half_width is None else half_width
+        if not nav:
+            check_communication_settings(reward, n_landmarks, half_width)
         if max_cycles < 1 or n_envs < 1:
             raise ValueError("max_cycles and n_envs must be >= 1")
         self.task = task
@@ -77,7 +92,6 @@ class TaskVecEnv(BatchedVecEnv):
         self.reward_type = reward
         self.collision_penalty = collision_penalty
         self.terminate_on_success = terminate_on_success
-        nav = task == "navigation"
         constants = NAVIGATION if nav else COMMUNICATION
         self.reward_radius = constants.reward_radius if reward_radius is None else float(reward_radius)
         self.success_radius = constants.success_radius if success_radius is None else float(success_radius)
@@ -87,14 +101,16 @@ class TaskVecEnv(BatchedVecEnv):
             self.n_landmarks, self.n_movers = NAVIGATION.n_landmarks, 2
             low, high = -np.ones(4, dtype=np.float32), np.ones(4, dtype=np.float32)
         else:
-            self.agent_layout = AgentLayout(("speaker_0", "listener_0"), (3, 11), (3, 2))
-            self.n_landmarks, self.n_movers = COMMUNICATION.n_landmarks, 1
+            self.n_landmarks, self.n_movers = int(n_landmarks), 1
+            self.agent_layout = AgentLayout(("speaker_0", "listener_0"), (3, 2 + 2 * self.n_landmarks + 3), (3, 2))
             low = np.array([0, 0, 0, -1, -1], dtype=np.float32)
             high = np.ones(5, dtype=np.float32)
         obs_space = spaces.Box(-np.inf, np.inf, (self.agent_layout.obs_dim,), dtype=np.float32)
         self.render_mode = None
         super().__init__(n_envs, obs_space, spaces.Box(low, high, dtype=np.float32))
         self._low, self._high = low.astype(np.float64), high.astype(np.float64)
+        self.half_width = float(half_width)
+        self._colors = goal_colors(self.n_landmarks)
         n = n_envs
         self.rngs = [seeding.np_random()[0] for _ in range(n)]
         n_entities = 2 + self.n_landmarks  # agents first, then landmarks (mpe2's entity order)
@@ -109,28 +125,17 @@ class TaskVecEnv(BatchedVecEnv):
 
     # --- episodes ------------------------------------------------------------------------------------------------
 
-    _colors = GOAL_COLORS
-
     def _reset_env(self, i: int) -> None:
         rng = self.rngs[i]
         if self.task == "communication":
             self.goal[i] = int(rng.integers(self.n_landmarks))
         for entity in range(self.pos.shape[1]):  # one draw per entity, in mpe2's order
-            self.pos[i, entity] = rng.uniform(-1, +1, 2)
+            self.pos[i, entity] = rng.uniform(-self.half_width, +self.half_width, 2)
         self.vel[i] = 0.0
         self.comm[i] = 0.0
         self.steps[i] = 0
         self.success_ever[i] = False
         self.episode_collisions[i] = 0
-
-    def reset(self) -> np.ndarray:
-        for i, seed in enumerate(next_reset_seeds(self)):
-            if seed is not None:
-                self.rngs[i] = seeding.np_random(seed)[0]
-            self._reset_env(i)
-        self._reset_seeds()
-        self._reset_options()
-        return self._observations()
 
     def _observations(self, envs: Any = slice(None)) -> np.ndarray:
         pos, vel = self.pos[envs], self.vel[envs]
@@ -141,7 +146,7 @@ class TaskVecEnv(BatchedVecEnv):
                 parts += [vel[:, a], me, pos[:, 2] - me, pos[:, 3] - me, pos[:, other] - me]
             return np.concatenate(parts, axis=1).astype(np.float32)
         listener = pos[:, 1]
-        landmarks = [pos[:, 2 + j] - listener for j in range(3)]
+        landmarks = [pos[:, 2 + j] - listener for j in range(self.n_landmarks)]
         speaker_obs = self._colors[self.goal[envs]]
         return np.concatenate([speaker_obs, vel[:, 1], *landmarks, self.comm[envs]], axis=1).astype(np.float32)
 
@@ -169,35 +174,7 @@ class TaskVecEnv(BatchedVecEnv):
         vel[:, movers] += force[:, movers] * DT  # (mass 1)
 
         rewards, success, collisions = self._evaluate()
-        self.steps += 1
-        self.success_ever |= success
-        self.episode_collisions += collisions
-        terminated = success & self.terminate_on_success
-        truncated = (self.steps >= self.max_cycles) & ~terminated
-        dones = terminated | truncated
-        obs = self._observations()
-        infos: list[dict[str, Any]] = []
-        n_agents = self.agent_layout.n_agents
-        for i in range(self.num_envs):
-            agent_info = {
-                "success": bool(success[i]),
-                "is_success": bool(self.success_ever[i]),
-                "collisions": int(collisions[i]),
-                "episode_collisions": int(self.episode_collisions[i]),
-            }
-            info = {
-                "agent_rewards": np.full(n_agents, rewards[i], dtype=np.float32),
-                "agent_infos": {agent: agent_info for agent in self.agent_layout.agents},
-                "is_success": bool(self.success_ever[i]),
-                "TimeLimit.truncated": bool(truncated[i]),
-            }
-            if dones[i]:
-                info["terminal_observation"] = obs[i].copy()  # (the row is overwritten by the reset below)
-                self._reset_env(i)
-            infos.append(info)
-        if dones.any():
-            obs[dones] = self._observations(dones)
-        return obs, rewards.astype(np.float32), dones, infos
+        return self._end_step(rewards, success, collisions)
 
     def _evaluate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shared rewards, success now, agent pairs overlapping now."""
@@ -206,9 +183,12 @@ class TaskVecEnv(BatchedVecEnv):
             agents, landmarks = pos[:, :2], pos[:, 2:]
             nearest = np.linalg.norm(landmarks[:, :, None, :] - agents[:, None, :, :], axis=-1).min(axis=2)
             overlapping = (np.linalg.norm(agents[:, 0] - agents[:, 1], axis=-1) < 2 * self.size).astype(np.int64)
+            success = np.all(nearest <= self.success_radius, axis=1)
+            if self.reward_type == "success":
+                return np.where(success, 0.0, -1.0), success, overlapping
             uncovered = np.sum(nearest > self.reward_radius, axis=1)
             total = 2 * uncovered + (2 * overlapping if self.collision_penalty else 0)
-            return -total / 2.0 / 2, np.all(nearest <= self.success_radius, axis=1), overlapping
+            return -total / 2.0 / 2, success, overlapping
         goal = pos[np.arange(self.num_envs), 2 + self.goal]
         distance = np.linalg.norm(pos[:, 1] - goal, axis=-1)
         if self.reward_type == "sparse":
