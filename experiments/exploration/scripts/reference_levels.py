@@ -17,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from tasks import CANDIDATES  # noqa: E402
+from study_tasks import CANDIDATES  # noqa: E402
 
 from sb3_macb.envs.scripted import scripted_actions  # noqa: E402
 from sb3_macb.envs.vec_tasks import make_task_vec_env  # noqa: E402
@@ -62,8 +62,11 @@ def main() -> None:
     levels: dict[str, dict[str, float]] = {}
     for task in args.tasks:
         levels[task] = {p: success_rate(task, p, args.episodes, args.seed) for p in ("scripted", "random")}
-        print(f"{task}: scripted {levels[task]['scripted']:.3f} random {levels[task]['random']:.3f} "
-              f"({args.episodes} episodes, seed {args.seed})", flush=True)
+        print(
+            f"{task}: scripted {levels[task]['scripted']:.3f} random {levels[task]['random']:.3f} "
+            f"({args.episodes} episodes, seed {args.seed})",
+            flush=True,
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"episodes": args.episodes, "seed": args.seed, "levels": levels}, f, indent=1)

@@ -1,0 +1,172 @@
+"""
+The exploration study's registered readings (README.md), applied to the runs under ``results/``: the entry rule of
+each task (from the pilot), the informative k (from the pilot's ``count1.json``), and per task the metrics and
+decisions of every method. Written and committed before any pilot or study run.
+
+    python scripts/analyze.py                       # every task with runs; prints markdown
+    python scripts/analyze.py --json decisions.json
+
+Only complete runs count (``run.json`` says ``complete``); a method with fewer seeds than registered is reported
+as incomplete and decided on nothing.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
+sys.path[:0] = [p for p in (CHECKOUT, os.path.join(STUDY, "scripts")) if p not in sys.path[:2]]
+
+from study_tasks import CANDIDATES  # noqa: E402
+
+from sb3_macb.common import evaluations  # noqa: E402
+
+WINDOW = 200  # evaluations: the final level's window and the moving average of the episodes to a threshold
+ENTRY_MAX_FINAL = 0.30  # plain MADDPG's final success below this ...
+ENTRY_MIN_SEEDS = 2  # ... in at least this many of the pilot's three seeds
+SCRIPTED_MIN = 0.90  # the scripted policy's success, at least
+COUNT1_MAX = 0.90  # the informative k: the largest k whose pilot count-1 fraction is below this
+PROBE_KS = (8, 16, 32, 64, 128, 256, 512)
+PILOT_SEEDS = (0, 1, 2)
+STUDY_SEEDS = (0, 1, 2, 3, 4)
+MARGIN = 0.2  # a method helps when its seed-mean final success is at least this much above the baseline's ...
+THRESHOLDS = (0.5, 0.9)
+# credit: (method, the baseline it must beat); MADDPG is every method's first baseline
+CREDIT = {
+    "macb_paper": ("maddpg",),
+    "macb_k": ("maddpg",),
+    "macb_k_center": ("maddpg", "macb_k"),  # centering: against the same estimator added plainly
+    "macb_k_center_int": ("maddpg", "macb_k"),  # the intrinsic critic: the same
+    "macb_k_sketch": ("maddpg", "macb_k_center"),  # the count-min sketch: against the exact table, centered alike
+    "rnd": ("maddpg",),
+    "constant": ("maddpg",),
+}
+INFORMATIVE = ("macb_k", "macb_k_center", "macb_k_center_int", "macb_k_sketch")  # (they must also beat the control)
+
+
+def load_runs(results: str, task: str, method: str) -> dict[int, dict[str, np.ndarray]]:
+    """The complete runs of a method on a task, by seed."""
+    folder = os.path.join(results, task, method)
+    runs = {}
+    if os.path.isdir(folder):
+        for name in sorted(os.listdir(folder)):
+            path = os.path.join(folder, name)
+            if name.startswith("seed_") and evaluations.is_complete(path):
+                runs[int(name[5:])] = evaluations.load(path)
+    return runs
+
+
+def summary(runs: dict[int, dict[str, np.ndarray]]) -> dict[str, object]:
+    """Per seed: the final level and the (censored) episodes to each threshold; and their seed means."""
+    out: dict[str, object] = {"seeds": sorted(runs)}
+    finals = [evaluations.final_level(runs[s], evaluations.SUCCESSES, WINDOW) for s in sorted(runs)]
+    out["final"] = finals
+    out["final_mean"] = float(np.mean(finals)) if finals else None
+    for threshold in THRESHOLDS:
+        hits = [evaluations.episodes_to(runs[s][evaluations.SUCCESSES], evaluations.episodes(runs[s]), threshold, WINDOW)
+                for s in sorted(runs)]  # fmt: skip
+        out[f"episodes_to_{threshold}"] = [h[0] for h in hits]
+        out[f"reached_{threshold}"] = [h[1] for h in hits]
+        out[f"episodes_to_{threshold}_mean"] = float(np.mean([h[0] for h in hits])) if hits else None
+    return out
+
+
+def helps(method: dict, baseline: dict) -> bool:
+    """
+    The registered rule: the method's seed-mean final success exceeds the baseline's by at least 0.2 and its worst
+    seed is above the baseline's mean, or it reaches 90% in every seed in at most half the baseline's seed-mean
+    episodes to 90% (the baseline's censored seeds counting at their last episode).
+    """
+    level = (method["final_mean"] - baseline["final_mean"] >= MARGIN - 1e-12
+             and min(method["final"]) > baseline["final_mean"])  # fmt: skip
+    speed = all(method["reached_0.9"]) and method["episodes_to_0.9_mean"] <= 0.5 * baseline["episodes_to_0.9_mean"]
+    return bool(level or speed)
+
+
+def entry(results: str, task: str, scripted: float | None) -> dict[str, object]:
+    """The entry rule from the pilot (MADDPG, seeds 0-2) and the scripted level; None where runs are missing."""
+    pilot = {s: r for s, r in load_runs(results, task, "maddpg").items() if s in PILOT_SEEDS}
+    if len(pilot) < len(PILOT_SEEDS):
+        return {"decided": False, "why": f"pilot incomplete: {len(pilot)} of {len(PILOT_SEEDS)} seeds"}
+    finals = [evaluations.final_level(pilot[s], evaluations.SUCCESSES, WINDOW) for s in PILOT_SEEDS]
+    failing = sum(f < ENTRY_MAX_FINAL for f in finals)
+    solvable = scripted is not None and scripted >= SCRIPTED_MIN
+    return {"decided": True, "enters": bool(failing >= ENTRY_MIN_SEEDS and solvable), "pilot_final": finals,
+            "pilot_seeds_below": failing, "scripted": scripted}  # fmt: skip
+
+
+def informative_k(results: str, task: str) -> dict[str, object]:
+    """The largest probed k whose count-1 fraction, averaged over the pilot's seeds, is below 0.9 (else 8)."""
+    levels = []
+    for seed in PILOT_SEEDS:
+        path = os.path.join(results, task, "maddpg", f"seed_{seed}", "count1.json")
+        if not os.path.isfile(path):
+            return {"k": None, "why": f"{path} missing"}
+        with open(path) as file:
+            levels.append(json.load(file)["count1_fraction"])
+    means = {k: float(np.mean([level[str(k)] for level in levels])) for k in PROBE_KS}
+    below = [k for k in PROBE_KS if means[k] < COUNT1_MAX]
+    return {"k": max(below) if below else min(PROBE_KS), "count1_mean": means}
+
+
+def decide(results: str, task: str) -> dict[str, object]:
+    """Every method's summary and the registered decisions on one task."""
+    summaries = {m: summary(load_runs(results, task, m)) for m in ("maddpg", *CREDIT)}
+    complete = {m for m, s in summaries.items() if tuple(s["seeds"]) == STUDY_SEEDS}
+    decisions: dict[str, object] = {}
+    for method, baselines in CREDIT.items():
+        if method not in complete or any(b not in complete for b in baselines):
+            decisions[method] = "incomplete"
+            continue
+        beats = {b: helps(summaries[method], summaries[b]) for b in baselines}
+        verdict = {"helps_vs_maddpg": beats["maddpg"], "beats": beats}
+        if method in INFORMATIVE or method in ("macb_paper", "rnd"):
+            verdict["beats_constant"] = "constant" in complete and helps(summaries[method], summaries["constant"])
+        verdict["credited"] = all(beats.values()) and verdict.get("beats_constant", True)
+        decisions[method] = verdict
+    return {"summaries": summaries, "decisions": decisions}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--results", default=os.path.join(STUDY, "results"))
+    parser.add_argument(
+        "--levels",
+        default=os.path.join(STUDY, "reference_levels.json"),
+        help="scripted and random levels (scripts/reference_levels.py --json)",
+    )
+    parser.add_argument("--json", help="also write everything to this file")
+    args = parser.parse_args()
+    scripted: dict[str, float] = {}
+    if os.path.isfile(args.levels):
+        with open(args.levels) as file:
+            scripted = {t: v["scripted"] for t, v in json.load(file)["levels"].items()}
+    report = {}
+    for task in CANDIDATES:
+        if not os.path.isdir(os.path.join(args.results, task)):
+            continue
+        report[task] = {"entry": entry(args.results, task, scripted.get(task)), "k": informative_k(args.results, task),
+                        **decide(args.results, task)}  # fmt: skip
+        e = report[task]["entry"]
+        print(f"## {task}\nentry: {e}\ninformative k: {report[task]['k']}")
+        print("| method | seeds | final success per seed | mean | reached 90% | episodes to 90% (mean, censored) | decision |")
+        print("|---|---|---|---|---|---|---|")
+        for method, s in report[task]["summaries"].items():
+            finals = ", ".join(f"{f:.3f}" for f in s["final"])
+            mean = "-" if s["final_mean"] is None else f"{s['final_mean']:.3f}"
+            reached = f"{sum(s['reached_0.9'])} of {len(s['seeds'])}"
+            ep = "-" if s["episodes_to_0.9_mean"] is None else f"{s['episodes_to_0.9_mean']:.0f}"
+            print(f"| {method} | {len(s['seeds'])} | {finals} | {mean} | {reached} | {ep} | "
+                  f"{report[task]['decisions'].get(method, '(baseline)')} |")  # fmt: skip
+        print()
+    if args.json:
+        with open(args.json, "w") as file:
+            json.dump(report, file, indent=1)
+
+
+if __name__ == "__main__":
+    main()

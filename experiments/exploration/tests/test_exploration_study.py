@@ -1,0 +1,110 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+STUDY = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(STUDY / "scripts"))
+
+import run_study  # noqa: E402
+from study_tasks import BUDGET, CANDIDATES, EPISODE_STEPS  # noqa: E402
+
+from sb3_macb.zoo.experiment import load_hyperparams  # noqa: E402
+
+
+def study(*args, cwd=STUDY):
+    return subprocess.run([sys.executable, str(STUDY / "scripts" / "run_study.py"), *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+
+
+def test_every_method_builds_for_every_task_and_differs_from_maddpg_only_as_registered():
+    assert set(CANDIDATES) == set(BUDGET) == set(EPISODE_STEPS)
+    base = load_hyperparams(CANDIDATES["spread3"][0], str(STUDY / "study.yml"), ["maddpg"])
+    assert base["policy_kwargs"] == "dict(net_arch=[64, 64])" and base["exploration"] is None
+    for method in run_study.METHODS:
+        for env_id, _ in CANDIDATES.values():
+            hyperparams = load_hyperparams(env_id, str(STUDY / "study.yml"), [method], {"exploration.k": 16})
+            changed = {key for key in base if hyperparams.get(key) != base[key]} | (set(hyperparams) - set(base))
+            assert changed <= {"exploration", "intrinsic_critic"}, (method, changed)
+    assert len(set(run_study.METHOD_TAGS.values())) == len(run_study.METHODS)
+
+
+def test_a_pilot_files_its_runs_with_count1_levels_and_a_rerun_leaves_them(tmp_path):
+    out, work = tmp_path / "results", tmp_path / "work"
+    common = ["--task", "nav-success", "--seeds", "0", "1", "--pack-by", "method", "-n", "240",
+              "--checkpoint-freq", "100", "-o", str(out), "--work", str(work)]  # fmt: skip
+    done = study("--methods", "maddpg", "macb_k_center_int", "--k", "8", "--pilot", *common)
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in (work / "nav-success").iterdir()) == ["kci_seeds0-1", "m_seeds0-1"]  # a pack each
+    for method, seed in [(m, s) for m in ("maddpg", "macb_k_center_int") for s in (0, 1)]:
+        run = out / "nav-success" / method / f"seed_{seed}"
+        assert json.loads((run / "run.json").read_text())["complete"]
+        assert yaml.safe_load((run / "config.yml").read_text())["env_kwargs"] == {"reward": "success"}
+        levels = json.loads((run / "count1.json").read_text())
+        assert levels["transitions"] == 240
+        fractions = [levels["count1_fraction"][str(k)] for k in run_study.PROBE_KS]
+        assert all(0 < f <= 1 for f in fractions) and fractions[-1] > fractions[0]  # longer codes repeat less
+        evaluations = np.load(run / "evaluations.npz")
+        assert len(evaluations["timesteps"]) == 240 // EPISODE_STEPS["nav-success"]
+        assert json.loads((run / "run.json").read_text())["pack_size"] == 2
+    seeds = [json.loads((out / "nav-success" / "maddpg" / f"seed_{s}" / "count1.json").read_text()) for s in (0, 1)]
+    assert seeds[0] != seeds[1]  # each run's own transitions
+    k = yaml.safe_load((out / "nav-success" / "macb_k_center_int" / "seed_0" / "config.yml").read_text())
+    assert k["exploration"]["k"] == 8 and k["intrinsic_critic"] is True
+    before = (out / "nav-success" / "maddpg" / "seed_0" / "evaluations.npz").read_bytes()
+    again = study("--methods", "maddpg", "--pilot", *common)
+    assert again.returncode == 0 and "already complete" in again.stdout
+    assert (out / "nav-success" / "maddpg" / "seed_0" / "evaluations.npz").read_bytes() == before
+
+
+def test_the_informative_methods_need_k():
+    refused = study("--task", "spread3", "--methods", "macb_k")
+    assert refused.returncode != 0 and "--k" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def fake_run(folder, levels, episodes=1000, reach_at=None):
+    """A complete run whose success rate is ``levels`` (one per seed-like run) from ``reach_at`` on (else throughout)."""
+    folder.mkdir(parents=True)
+    n = episodes
+    rate = np.full(n, levels)
+    if reach_at is not None:
+        rate[:reach_at] = 0.0
+    successes = (np.arange(10)[None, :] < np.round(rate * 10)[:, None]).astype(float)
+    np.savez(folder / "evaluations.npz", timesteps=np.arange(1, n + 1) * 20, successes=successes,
+             episodes=np.arange(1, n + 1))  # fmt: skip
+    (folder / "run.json").write_text(json.dumps({"complete": True}))
+
+
+def test_the_registered_rules_on_made_up_runs(tmp_path):
+    import analyze
+
+    results = tmp_path / "results"
+    task = results / "spread3"
+    for seed, level in enumerate([0.1, 0.5, 0.2, 0.1, 0.1]):
+        fake_run(task / "maddpg" / f"seed_{seed}", level)
+    for seed in range(5):
+        fake_run(task / "macb_k" / f"seed_{seed}", 0.4)  # +0.2 over MADDPG's 0.2, every seed above it: helps
+        fake_run(task / "macb_k_center" / f"seed_{seed}", [0.7, 0.7, 0.7, 0.7, 0.3][seed])  # +0.32, worst 0.3 > 0.2
+        fake_run(task / "constant" / f"seed_{seed}", 0.2)
+        fake_run(task / "rnd" / f"seed_{seed}", 1.0, reach_at=300)  # 90% in every seed, MADDPG never: faster
+        fake_run(task / "macb_paper" / f"seed_{seed}", [0.9, 0.9, 0.9, 0.9, 0.1][seed])  # mean +0.54, worst 0.1: no
+        (task / "maddpg" / f"seed_{seed}" / "count1.json").write_text(json.dumps(
+            {"count1_fraction": {str(k): min(1.0, 0.5 + k / 100) for k in analyze.PROBE_KS}}))  # fmt: skip
+    entry = analyze.entry(str(results), "spread3", scripted=0.93)
+    assert entry["enters"] and entry["pilot_seeds_below"] == 2
+    assert not analyze.entry(str(results), "spread3", scripted=0.85)["enters"]
+    assert analyze.informative_k(str(results), "spread3")["k"] == 32  # 0.82 at 32, 1.0 at 64
+    report = analyze.decide(str(results), "spread3")
+    decisions = report["decisions"]
+    assert decisions["macb_k"]["helps_vs_maddpg"] and decisions["macb_k"]["credited"]
+    center = decisions["macb_k_center"]
+    assert center["helps_vs_maddpg"] and not center["beats"]["macb_k"] and not center["credited"]  # 0.62 vs 0.4
+    assert decisions["rnd"]["helps_vs_maddpg"] and decisions["rnd"]["credited"]
+    assert not decisions["macb_paper"]["helps_vs_maddpg"]
+    assert decisions["macb_k_center_int"] == "incomplete" and decisions["macb_k_sketch"] == "incomplete"
+    assert report["summaries"]["maddpg"]["reached_0.9"] == [False] * 5
+    (task / "rnd" / "seed_4" / "run.json").write_text(json.dumps({"complete": False}))  # a run in progress
+    assert analyze.decide(str(results), "spread3")["decisions"]["rnd"] == "incomplete"
