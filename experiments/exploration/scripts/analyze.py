@@ -137,7 +137,7 @@ def main() -> None:
     parser.add_argument(
         "--levels",
         default=os.path.join(STUDY, "reference_levels.json"),
-        help="scripted and random levels (scripts/reference_levels.py --json)",
+        help="scripted and random levels (scripts/task_levels.py --json)",
     )
     parser.add_argument("--json", help="also write everything to this file")
     args = parser.parse_args()

@@ -3,7 +3,7 @@ Success rates of the scripted reference policy (:func:`sb3_macb.envs.scripted.sc
 random actions on the exploration study's candidate tasks, as the study's evaluation counts them (an episode
 succeeds when its success condition holds at some step).
 
-    python experiments/exploration/scripts/reference_levels.py --episodes 1000 --json levels.json
+    python experiments/exploration/scripts/task_levels.py --episodes 1000 --json levels.json
 
 Prints one line per task and policy; ``--json`` also writes them.
 """
