@@ -91,7 +91,7 @@ def plot_curves(
 ) -> str:
     """
     Success rate (any-step and, where recorded, final-step) and mean evaluation return against training episodes,
-    one line per run group; with ``reference`` (the JSON of the study's ``scripts/reference_levels.py``) the scripted
+    one line per run group; with ``reference`` (the JSON of the study's ``scripts/task_levels.py``) the scripted
     listeners' levels as horizontal lines. With ``complete_only``, runs still in progress are left out (otherwise
     a group's curve ends where its shortest run does, with a warning).
 
@@ -279,7 +279,7 @@ def main(argv: list[str] | None = None) -> None:
     curves.add_argument("--confidence", type=float, default=0.75)
     curves.add_argument("-o", "--output", default="curves.png")
     curves.add_argument(
-        "--reference", default=None, help="scripted listeners' levels (experiments/macb_paper/scripts/reference_levels.py)"
+        "--reference", default=None, help="scripted listeners' levels (experiments/macb_paper/scripts/task_levels.py)"
     )
     curves.add_argument("--complete-only", action="store_true", help="leave out runs still in progress (no "
                         "'complete' in their run.json)")  # fmt: skip

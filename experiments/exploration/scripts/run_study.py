@@ -17,17 +17,17 @@ SimHash codes seen once over all the run's transitions, joint observation and ac
 
 import argparse
 import json
-import multiprocessing
 import os
 import shlex
 import sys
-from concurrent.futures import ProcessPoolExecutor
 
 STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # experiments/exploration
 CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
 sys.path[:0] = [p for p in (CHECKOUT, os.path.join(STUDY, "scripts")) if p not in sys.path[:2]]
 
 from study_tasks import BUDGET, CANDIDATES, EPISODE_STEPS  # noqa: E402
+
+from sb3_macb.zoo.processes import run_packs  # noqa: E402
 
 CONFIG = os.path.join(STUDY, "study.yml")
 METHODS = ("maddpg", "macb_paper", "macb_k", "macb_k_center", "macb_k_center_int", "macb_k_sketch", "rnd", "constant")
@@ -156,14 +156,7 @@ def main() -> None:
 
     print(f"sb3_macb {sb3_macb.__version__} from {os.path.dirname(os.path.abspath(sb3_macb.__file__))}", flush=True)
     packs = plan(args)
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
-        futures = [pool.submit(run_pack, args, work, jobs, command) for work, jobs in packs]
-        failed = 0
-        for future in futures:
-            line, error = future.result()
-            failed += error
-            print(line, flush=True)
+    failed = run_packs(run_pack, [(args, work, jobs, command) for work, jobs in packs], args.jobs)
     if failed:
         sys.exit(f"{failed} of {len(packs)} packs failed (see above)")
 

@@ -23,12 +23,10 @@ commit runs that commit's library even when the virtual environment holds an edi
 """
 
 import argparse
-import multiprocessing
 import os
 import shlex
 import shutil
 import sys
-from concurrent.futures import ProcessPoolExecutor
 
 STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # experiments/macb_paper
 CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
@@ -63,26 +61,10 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     return packs
 
 
-def _exit_with_parent() -> None:
-    """End this worker when the script that started it is gone (killed workers would otherwise run on)."""
-    import threading
-    import time
-
-    parent = os.getppid()
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(1.0)
-        os._exit(1)
-
-    threading.Thread(target=watch, daemon=True).start()
-
-
 def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], command: str) -> tuple[str, bool]:
     """Train (or resume) one pack; (the line to print, whether it failed)."""
     import torch as th
 
-    _exit_with_parent()
     from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run
 
     th.set_num_threads(1)
@@ -131,15 +113,10 @@ def main() -> None:
     import sb3_macb
 
     print(f"sb3_macb {sb3_macb.__version__} from {os.path.dirname(os.path.abspath(sb3_macb.__file__))}", flush=True)
+    from sb3_macb.zoo.processes import run_packs
+
     packs = plan(args)
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
-        futures = [pool.submit(run_pack, args, work, jobs, command) for work, jobs in packs]
-        failed = 0
-        for future in futures:
-            line, error = future.result()
-            failed += error
-            print(line, flush=True)
+    failed = run_packs(run_pack, [(args, work, jobs, command) for work, jobs in packs], args.jobs)
     if failed:
         sys.exit(f"{failed} of {len(packs)} packs failed (see above)")
 
