@@ -115,7 +115,8 @@ def test_the_scripted_policy_solves_each_task_and_random_actions_do_not(env_id, 
 
     rng = np.random.default_rng(0)
     assert success_rate(scripted_actions) >= 0.9
-    low, high = make_task_vec_env(env_id, 1, kwargs).action_space.low, make_task_vec_env(env_id, 1, kwargs).action_space.high
+    space = make_task_vec_env(env_id, 1, kwargs).action_space
+    low, high = space.low, space.high
     assert success_rate(lambda venv: rng.uniform(low, high, (venv.num_envs, low.shape[0]))) <= 0.1
     with pytest.raises(TypeError, match="SpreadVecEnv or a TaskVecEnv"):
         scripted_actions(make_vec_env("Pendulum-v1", 1))

@@ -60,6 +60,12 @@ NAVIGATION = TaskConstants(size=0.125, n_landmarks=2, reward_radius=0.125, succe
 COMMUNICATION = TaskConstants(size=0.075, n_landmarks=3, reward_radius=0.15, success_radius=0.15)
 
 
+def check_navigation_settings(reward: str) -> None:
+    """Raise a ``ValueError`` naming the setting of 2-Agent Navigation that is not allowed."""
+    if reward not in NAVIGATION_REWARDS:
+        raise ValueError(f"reward must be one of {NAVIGATION_REWARDS} for 2-Agent Navigation, got {reward!r}")
+
+
 def check_communication_settings(reward: str, n_landmarks: Any, half_width: Any) -> None:
     """Raise a ``ValueError`` naming the setting of Communicative Navigation that is not allowed."""
     if reward not in COMMUNICATION_REWARDS:

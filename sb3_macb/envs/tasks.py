@@ -31,11 +31,11 @@ from sb3_macb.envs.task_constants import (
     FORCE_SCALE,
     MAX_CYCLES,
     NAVIGATION,
-    NAVIGATION_REWARDS,
     SPREAD_AGENT_SIZE,
     SPREAD_COVER_RADIUS,
     SPREAD_LANDMARK_SIZE,
     check_communication_settings,
+    check_navigation_settings,
     goal_colors,
 )
 
@@ -166,8 +166,7 @@ class TwoAgentNavigationScenario(CoveringScenario):
         reward: str = "sparse",
     ):
         super().__init__(terminate_on_success)
-        if reward not in NAVIGATION_REWARDS:
-            raise ValueError(f"reward must be one of {NAVIGATION_REWARDS} for 2-Agent Navigation, got {reward!r}")
+        check_navigation_settings(reward)
         self.reward_type = reward
         self.reward_radius = reward_radius
         self.success_radius = success_radius

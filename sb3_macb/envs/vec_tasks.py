@@ -32,8 +32,8 @@ from sb3_macb.envs.task_constants import (
     FORCE_SCALE,
     MAX_CYCLES,
     NAVIGATION,
-    NAVIGATION_REWARDS,
     check_communication_settings,
+    check_navigation_settings,
     goal_colors,
 )
 from sb3_macb.envs.vec_spread import SpreadVecEnv
@@ -76,8 +76,7 @@ class TaskVecEnv(ParticleVecEnv):
             raise ValueError(f"task must be 'navigation' or 'communication', got {task!r}")
         nav = task == "navigation"
         if nav:
-            if reward not in NAVIGATION_REWARDS:
-                raise ValueError(f"reward must be one of {NAVIGATION_REWARDS} for 2-Agent Navigation, got {reward!r}")
+            check_navigation_settings(reward)
             for key, value in (("n_landmarks", n_landmarks), ("half_width", half_width)):
                 if value is not None:
                     raise ValueError(f"{key} is a setting of Communicative Navigation, not of 2-Agent Navigation")

@@ -45,7 +45,6 @@ CREDIT = {
     "rnd": ("maddpg",),
     "constant": ("maddpg",),
 }
-INFORMATIVE = ("macb_k", "macb_k_center", "macb_k_center_int", "macb_k_sketch")  # (they must also beat the control)
 
 
 def load_runs(results: str, task: str, method: str) -> dict[int, dict[str, np.ndarray]]:
@@ -124,7 +123,7 @@ def decide(results: str, task: str) -> dict[str, object]:
             continue
         beats = {b: helps(summaries[method], summaries[b]) for b in baselines}
         verdict = {"helps_vs_maddpg": beats["maddpg"], "beats": beats}
-        if method in INFORMATIVE or method in ("macb_paper", "rnd"):
+        if method != "constant":  # a bonus is credited with what its estimator knows only beyond a reward offset
             verdict["beats_constant"] = "constant" in complete and helps(summaries[method], summaries["constant"])
         verdict["credited"] = all(beats.values()) and verdict.get("beats_constant", True)
         decisions[method] = verdict
