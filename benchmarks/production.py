@@ -17,6 +17,7 @@ timed alone on this machine with the faster of oneDNN's and MKL's float32 GEMM.
     python benchmarks/production.py                            # this checkout alone
     python benchmarks/production.py --baseline /tmp/base       # and a worktree of an earlier commit beside it
     python benchmarks/production.py --rounds 1 --prefill 50000 # a quicker look
+    python benchmarks/production.py --baseline /tmp/base --precision bf16 --configs 400  # bf16 against float32
 
 The baseline is driven through the API it had (``MADDPG(n_runs=...)``, ``make_task_vec_env``,
 ``MultiAgentEvalCallback``); a checkout from before 0.8.0 gets ``buffer_size * K`` so its runs hold as many rows.
@@ -55,11 +56,12 @@ def worker(args: argparse.Namespace) -> None:
     th.set_num_threads(1)
     net, pack = CONFIGS[args.config]
     seeds = list(range(pack))
+    precision = {"precision": args.precision} if args.precision != "fp32" else {}  # (a baseline may predate the option)
     per_run_buffer = hasattr(MultiAgentReplayBuffer, "buffer_size_per_run")  # 0.8.0 on: buffer_size is per run
     model = MADDPG(
         "MlpPolicy", make_task_vec_env(ENV, pack, {"reward": "sparse"}), n_runs=pack, run_seeds=seeds,
         exploration=[MACB(beta=0.8, k=512) for _ in seeds], action_noise=[NormalActionNoise(np.zeros(5), 0.1 * np.ones(5)) for _ in seeds],
-        learning_rate=1e-3, batch_size=100, learning_starts=100 * pack, policy_kwargs=dict(net_arch=net),
+        learning_rate=1e-3, batch_size=100, learning_starts=100 * pack, policy_kwargs=dict(net_arch=net, **precision),
         buffer_size=args.buffer if per_run_buffer else args.buffer * pack, device="cpu",
     )  # fmt: skip
     callback = MultiAgentEvalCallback(make_eval_vec_env(ENV, 10, seeds, {"reward": "sparse"}), n_eval_episodes=10,
@@ -169,7 +171,7 @@ def measure(checkouts: list[str], config: str, window: str, args: argparse.Names
     for checkout in checkouts:
         command = [sys.executable, os.path.abspath(__file__), "--worker", "--config", config, "--window", window,
                    "--steps", str(steps), "--warmup", str(max(steps // 5, 20)), "--prefill", str(args.prefill),
-                   "--buffer", str(args.buffer)]  # fmt: skip
+                   "--buffer", str(args.buffer), "--precision", args.precision if checkout == ROOT else "fp32"]  # fmt: skip
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([checkout, os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
         processes.append(subprocess.Popen(command, env=env, stdout=subprocess.PIPE, text=True, cwd=checkout))
     results = []
@@ -189,6 +191,9 @@ def main() -> None:
     parser.add_argument("--steps-64", type=int, default=800, help="timed steps per run at 64-64")
     parser.add_argument("--prefill", type=int, default=200_000, help="random transitions per run before the late window")
     parser.add_argument("--buffer", type=int, default=1_000_000, help="replay buffer transitions per run")
+    parser.add_argument("--precision", choices=["fp32", "bf16"], default="fp32",
+                        help="this checkout's products (the baseline stays float32)")  # fmt: skip
+    parser.add_argument("--configs", nargs="+", choices=sorted(CONFIGS), default=sorted(CONFIGS), help="which networks")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--config", choices=sorted(CONFIGS), help=argparse.SUPPRESS)
     parser.add_argument("--window", choices=["early", "late"], help=argparse.SUPPRESS)
@@ -211,13 +216,13 @@ def main() -> None:
 
     floors = {config: gemm_floor_ms(net) for config, (net, _) in CONFIGS.items()}
     rates = gemm_rates()
-    print(f"sb3_macb {sb3_macb.__version__} (this checkout), torch {th.__version__}, {platform.processor() or platform.machine()}, "
+    print(f"sb3_macb {sb3_macb.__version__} (this checkout, {args.precision}), torch {th.__version__}, {platform.processor() or platform.machine()}, "
           f"one thread per process, {len(checkouts)} process(es) at once")  # fmt: skip
     print("GEMM 100x400 @ 400x300, GFLOP/s: " + ", ".join(f"{k} {v:.0f}" for k, v in rates.items() if v))
     print(f"GEMM floor of one update of one run: 400-300 {floors['400']:.2f} ms, 64-64 {floors['64']:.3f} ms")
     results: dict[tuple[str, str, int], list[float]] = {}
     for round_ in range(args.rounds):
-        for config in CONFIGS:
+        for config in args.configs:
             for window in ("early", "late"):
                 order = checkouts if round_ % 2 == 0 else checkouts[::-1]  # (which one starts first)
                 rates_now = measure(order, config, window, args)
@@ -228,7 +233,7 @@ def main() -> None:
     print("\n| networks | window | checkout | run-steps/s per core | ms per run-step | / GEMM floor |")
     print("|---|---|---|---|---|---|")
     summary: dict[str, float] = {}
-    for config in CONFIGS:
+    for config in args.configs:
         for window in ("early", "late"):
             for index, name in enumerate(["ours", "baseline"][: len(checkouts)]):
                 rate = statistics.median(results[(config, window, index)])
@@ -238,10 +243,10 @@ def main() -> None:
                     summary[f"rs{config}" if index == 0 else f"base{config}"] = rate
                     if index == 0:
                         summary[f"floor{config}"] = ratio
-    vs = {c: summary[f"rs{c}"] / summary[f"base{c}"] if f"base{c}" in summary else float("nan") for c in CONFIGS}
-    print(f"\nproduction: rs400={summary['rs400']:.0f} rs64={summary['rs64']:.0f} floor400={summary['floor400']:.2f} "
-          f"floor64={summary['floor64']:.2f} vs_baseline400={vs['400']:.2f} vs_baseline64={vs['64']:.2f}")
-
+    vs = {c: summary[f"rs{c}"] / summary[f"base{c}"] if f"base{c}" in summary else float("nan") for c in args.configs}
+    figures = [f"rs{c}={summary[f'rs{c}']:.0f}" for c in args.configs] + [f"floor{c}={summary[f'floor{c}']:.2f}" for c in args.configs]
+    figures += [f"vs_baseline{c}={vs[c]:.2f}" for c in args.configs]
+    print(f"\nproduction: {' '.join(figures)}" + ("" if args.precision == "fp32" else f" precision={args.precision}"))
 
 if __name__ == "__main__":
     main()

@@ -4,7 +4,10 @@ in one pass.
 
 Two interchangeable execution paths compute the same function and gradients:
 
-- a portable path built from ``torch.baddbmm`` (any device, any activation, autograd does the backward);
+- a portable path built from ``torch.baddbmm`` (any device, any activation): one batched product per layer for all
+  groups; for ReLU networks without shared parameters one autograd node with a hand-written backward that makes the
+  same products autograd would (the same numbers, bit for bit, with less of the graph's bookkeeping), autograd's
+  graph of products, masks and activations otherwise;
 - on CPU, for float32 and ReLU, one autograd ``Function`` for all groups and layers with a hand-written backward,
   calling one GEMM per group and layer: oneDNN's (:data:`~sb3_macb.common.private_apis.ONEDNN_LINEAR`) for large layers on
   AVX-512 CPUs, where it runs these shapes about twice as fast as MKL, and ``torch.addmm``/``mm`` (MKL) elsewhere
@@ -191,6 +194,68 @@ class _GroupedReluMLP(th.autograd.Function):
         return (grad_x, None, None, None, None, *grad_w, *grad_b)
 
 
+class _BatchedReluMLP(th.autograd.Function):
+    """
+    Forward and backward of all groups and layers of a ReLU MLP in one autograd node, with one batched product
+    (``baddbmm``/``bmm``) per layer for all groups: the products autograd would make of the batched path, in the same
+    order and on the same operands, so the results are the same bit for bit; only the graph's bookkeeping (a dozen
+    nodes per call: masks, transposes, products, activations) is gone.
+    """
+
+    @staticmethod
+    def forward(
+        ctx: Any,
+        x: th.Tensor,
+        sum_groups: bool,
+        in_mask: th.Tensor | None,
+        out_masks: tuple[th.Tensor, th.Tensor] | None,
+        *params: th.Tensor,
+    ) -> th.Tensor:
+        # The weights arrive unmasked: masked entries are zero and stay zero because their gradient is masked.
+        n_layers = len(params) // 2
+        weights, biases = params[:n_layers], params[n_layers:]
+        inputs = []  # each layer's input (for layers after the first, the previous layer's ReLU output)
+        h = x
+        for layer in range(n_layers):
+            inputs.append(h)
+            h = th.baddbmm(biases[layer].unsqueeze(1), h, weights[layer].transpose(1, 2))
+            if layer < n_layers - 1:
+                h = h.relu_()
+        ctx.inputs = inputs if any(ctx.needs_input_grad) else None
+        ctx.in_mask, ctx.out_masks, ctx.sum_groups = in_mask, out_masks, sum_groups
+        ctx.save_for_backward(*weights)
+        return h.sum(dim=0) if sum_groups else h
+
+    @staticmethod
+    def backward(ctx: Any, grad_out: th.Tensor) -> tuple[th.Tensor | None, ...]:
+        weights = ctx.saved_tensors
+        n_layers = len(weights)
+        needs = ctx.needs_input_grad
+        need_x, need_w, need_b = needs[0], needs[4 : 4 + n_layers], needs[4 + n_layers :]
+        inputs = ctx.inputs
+        grad = grad_out.unsqueeze(0).expand(len(weights[0]), *grad_out.shape) if ctx.sum_groups else grad_out
+        grad_w: list[th.Tensor | None] = [None] * n_layers
+        grad_b: list[th.Tensor | None] = [None] * n_layers
+        for layer in range(n_layers - 1, -1, -1):
+            if layer < n_layers - 1:
+                grad = th.ops.aten.threshold_backward(grad, inputs[layer + 1], 0)
+            if need_w[layer]:  # (as autograd: the gradient of the transposed weight, transposed back)
+                grad_w[layer] = th.bmm(inputs[layer].transpose(1, 2), grad).transpose(1, 2)
+            if need_b[layer]:
+                grad_b[layer] = grad.sum(dim=1)
+            if layer > 0 or need_x:
+                grad = th.bmm(grad, weights[layer])
+        ctx.inputs = None
+        if grad_w[0] is not None and ctx.in_mask is not None:
+            grad_w[0] = grad_w[0] * ctx.in_mask
+        if ctx.out_masks is not None:
+            if grad_w[-1] is not None:
+                grad_w[-1] = grad_w[-1] * ctx.out_masks[0]
+            if grad_b[-1] is not None:
+                grad_b[-1] = grad_b[-1] * ctx.out_masks[1]
+        return (grad if need_x else None, None, None, None, *grad_w, *grad_b)
+
+
 class _SharedGather(th.autograd.Function):
     """
     ``params.index_select(0, index)`` whose backward sums each parameter group's gradients in a fixed order (its
@@ -282,6 +347,9 @@ class GroupedMLP(nn.Module):
     param_members: th.Tensor
 
     use_onednn: bool = True  # class-wide switch of the per-group GEMM path (oneDNN or MKL), taken only where it applies
+    # class-wide switch of the batched path's one-node ReLU MLP (False: autograd's graph of the same products; the
+    # numbers are the same either way, the switch is for tests and benchmarks)
+    fused_batched: bool = True
 
     def __init__(
         self,
@@ -399,6 +467,10 @@ class GroupedMLP(nn.Module):
                 in_mask = None if in_mask is None else in_mask.to(dtype)
                 out_mask, out_bias_mask = out_mask.to(dtype), out_bias_mask.to(dtype)
             masks = (in_mask, out_mask, out_bias_mask)
+            if self._relu and not use_low and self.param_index is None and x.dim() == 3 and self.fused_batched:
+                weights, biases, in_mask, out_mask, out_bias_mask = _select_groups(groups, weights, biases, *masks)
+                out_masks = None if self._full_out else (out_mask, out_bias_mask)
+                return _BatchedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, *weights, *biases)
             if self.param_index is not None:
                 out = self._shared_forward(x, weights, biases, groups, *masks)
             else:
