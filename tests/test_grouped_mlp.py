@@ -54,6 +54,9 @@ def test_one_node_forward_and_gradients_equal_autograds_bit_for_bit(unfused, sum
         results.append((out.detach(), x.grad, grads))
     (out_f, xg_f, g_f), (out_u, xg_u, g_u) = results
     assert th.equal(out_f, out_u)
+    with th.no_grad():  # without autograd the layers run as plain calls, with the same numbers
+        plain = net(x0, groups=groups, detach_params=detach_params)
+    assert plain.grad_fn is None and th.equal(plain, out_f)
     assert th.equal(xg_f, xg_u)
     if detach_params:
         assert all(g is None for g in g_f + g_u)

@@ -15,6 +15,7 @@ Two interchangeable execution paths compute the same function and gradients:
   pack.
 """
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -194,6 +195,25 @@ class _GroupedReluMLP(th.autograd.Function):
         return (grad_x, None, None, None, None, *grad_w, *grad_b)
 
 
+def _batched_relu_layers(
+    x: th.Tensor, weights: Sequence[th.Tensor], biases: Sequence[th.Tensor], inputs: list[th.Tensor] | None = None
+) -> th.Tensor:
+    """
+    The batched path's layers of a ReLU MLP: one ``baddbmm`` per layer for all groups, ReLU between layers.
+
+    :param x: (G, batch, in_dim) inputs.
+    :param inputs: A list to append each layer's input to (for a backward pass), or None.
+    """
+    h = x
+    for layer, (weight, bias) in enumerate(zip(weights, biases)):
+        if inputs is not None:
+            inputs.append(h)
+        h = th.baddbmm(bias.unsqueeze(1), h, weight.transpose(1, 2))
+        if layer < len(weights) - 1:
+            h = h.relu_()
+    return h
+
+
 class _BatchedReluMLP(th.autograd.Function):
     """
     Forward and backward of all groups and layers of a ReLU MLP in one autograd node, with one batched product
@@ -213,17 +233,11 @@ class _BatchedReluMLP(th.autograd.Function):
     ) -> th.Tensor:
         # The weights arrive unmasked: masked entries are zero and stay zero because their gradient is masked.
         n_layers = len(params) // 2
-        weights, biases = params[:n_layers], params[n_layers:]
-        inputs = []  # each layer's input (for layers after the first, the previous layer's ReLU output)
-        h = x
-        for layer in range(n_layers):
-            inputs.append(h)
-            h = th.baddbmm(biases[layer].unsqueeze(1), h, weights[layer].transpose(1, 2))
-            if layer < n_layers - 1:
-                h = h.relu_()
+        inputs: list[th.Tensor] = []  # each layer's input (after the first, the previous layer's ReLU output)
+        h = _batched_relu_layers(x, params[:n_layers], params[n_layers:], inputs)
         ctx.inputs = inputs if any(ctx.needs_input_grad) else None
         ctx.in_mask, ctx.out_masks, ctx.sum_groups = in_mask, out_masks, sum_groups
-        ctx.save_for_backward(*weights)
+        ctx.save_for_backward(*params[:n_layers])
         return h.sum(dim=0) if sum_groups else h
 
     @staticmethod
@@ -469,6 +483,9 @@ class GroupedMLP(nn.Module):
             masks = (in_mask, out_mask, out_bias_mask)
             if self._relu and not use_low and self.param_index is None and x.dim() == 3 and self.fused_batched:
                 weights, biases, in_mask, out_mask, out_bias_mask = _select_groups(groups, weights, biases, *masks)
+                if not th.is_grad_enabled() or not (x.requires_grad or (weights[0].requires_grad and not detach_params)):
+                    out = _batched_relu_layers(x, weights, biases)  # (nothing to record: no autograd node at all)
+                    return out.sum(dim=0) if self.sum_groups else out
                 out_masks = None if self._full_out else (out_mask, out_bias_mask)
                 return _BatchedReluMLP.apply(x, self.sum_groups, in_mask, out_masks, *weights, *biases)
             if self.param_index is not None:
