@@ -71,10 +71,11 @@ def breakdown(net: list[int], pack: int, steps: int, buffer: int) -> None:
     """Print the split of ``steps`` pack-steps and of the update's operators."""
     th.set_num_threads(1)
     seeds = list(range(pack))
+    noises = [NormalActionNoise(np.zeros(5), 0.1 * np.ones(5)) for _ in seeds]
     model = MADDPG(
         "MlpPolicy", make_task_vec_env(ENV, pack, {"reward": "sparse"}), n_runs=pack, run_seeds=seeds,
-        exploration=[MACB(beta=0.8, k=512) for _ in seeds], action_noise=[NormalActionNoise(np.zeros(5), 0.1 * np.ones(5)) for _ in seeds],
-        learning_rate=1e-3, batch_size=100, learning_starts=100 * pack, policy_kwargs=dict(net_arch=net), buffer_size=buffer, device="cpu",
+        exploration=[MACB(beta=0.8, k=512) for _ in seeds], action_noise=noises, learning_rate=1e-3, batch_size=100,
+        learning_starts=100 * pack, policy_kwargs=dict(net_arch=net), buffer_size=buffer, device="cpu",
     )  # fmt: skip
     callback = MultiAgentEvalCallback(make_eval_vec_env(ENV, 10, seeds, {"reward": "sparse"}), n_eval_episodes=10,
                                       eval_freq=20, verbose=0, warn=False)  # fmt: skip
@@ -134,6 +135,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.pack is not None and args.pack < 1 or args.steps is not None and args.steps < 20:
         parser.error("--pack must be >= 1 and --steps >= 20")
+    if args.net is not None and min(args.net) < 1 or args.buffer < 1000:
+        parser.error("--net takes hidden sizes >= 1, and --buffer must be >= 1000 rows")
     configs = (
         [([400, 300], 3, 200), ([64, 64], 8, 800)] if args.net is None else [(args.net, 8 if max(args.net) < 128 else 3, 400)]
     )
