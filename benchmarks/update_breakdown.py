@@ -10,7 +10,7 @@ averaging and in everything else, timed around each operator call, against the G
 
 Workload as ``production.py``'s (sparse Communicative Navigation, MACB(s, x) k 512, batch 100, evaluation of 10
 episodes after every 20-step episode), buffers of ``--buffer`` rows per run. torch's profiler is not used: on CPU it
-charged elementwise operators of a 64-64 pack of 8 up to ten times their wall-clock time (a ReLU of a 16x100x64
+charged elementwise operators of a 64-64 pack of 8 about eight times their wall-clock time (a ReLU of a 16x100x64
 tensor: 228 us in the profiler, 27 us timed around the call), so its shares mislead. The operator timing below
 runs under a ``TorchDispatchMode`` that times each operator call; its own cost is left out of the operator times
 but lengthens the instrumented pass, so the update's time is taken from a separate, uninstrumented pass. Last line:
