@@ -543,3 +543,35 @@ def test_summarize_refuses_a_window_below_one_in_one_line(tmp_path):
     done = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=STUDY)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1].endswith("--window must be >= 1 (evaluations), got 0")
+
+
+def test_bf16_check_cuts_the_runs_and_applies_its_registered_rules(tmp_path):
+    check = load_script("bf16_check")
+    n, cut = 600, 500  # one evaluation per training episode; the check reads episodes 1-500, window 200
+
+    def group(name: str, rates_by_seed: list[list[float]]) -> str:
+        for seed, rates in enumerate(rates_by_seed):
+            write_run(tmp_path / name / f"seed_{seed}" / "evaluations.npz", rates)
+        return str(tmp_path / name)
+
+    # float32 reaches 90% at episode 280 (100 evaluations at 0, then 1.0: 180 of 200 at 1.0) and holds L = 1.0
+    full = group("fp32", [[0.0] * 100 + [1.0] * (n - 100)] * 3)
+    # episodes after the cut do not count: a collapse at 501 changes nothing
+    same = group("same", [[0.0] * 100 + [1.0] * (cut - 100) + [0.0] * (n - cut)] * 3)
+    report = check.report(same, full, [], cut)
+    assert "**matches**" in report and "median E 280 against 280" in report
+    # later by 150 episodes: 430 > 1.25 * 280 = 350, worse though L at the cut is the same
+    late = group("late", [[0.0] * 250 + [1.0] * (n - 250)] * 3)
+    assert "**worse**" in check.report(late, full, [], cut)
+    # L 0.9 against 1.0 (more than 0.05 below), reaching 90% as early
+    low = group("low", [[0.0] * 100 + [0.9] * (n - 100)] * 3)
+    assert check.decide(check.read_group(low, cut), check.read_group(full, cut))[0] == "worse"
+    # float32 not learnt by the cut: nothing to decide
+    unlearnt = group("unlearnt", [[0.3] * n] * 3)
+    assert check.decide(check.read_group(same, cut), check.read_group(unlearnt, cut))[0] == "uninformative"
+    # runs that never reach 90% count at the cut ("+" in the table)
+    assert "500+" in check.report(unlearnt, full, [same], cut)
+    # a run short of the cut is refused with one line
+    short = group("short", [[1.0] * (cut - 1)])
+    with pytest.raises(SystemExit, match="499 training episodes, the check needs 500"):
+        check.read_group(short, cut)
