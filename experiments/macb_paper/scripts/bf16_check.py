@@ -4,7 +4,7 @@ applied mechanically:
 
     python scripts/bf16_check.py results/CommunicativeNavigation-sparse-bf16-2e5/maddpg+bf16 \\
         results/CommunicativeNavigation-sparse-paper/maddpg \\
-        --also results/CommunicativeNavigation-sparse-paper-1e6/maddpg
+        --also results/CommunicativeNavigation-sparse-paper-1e6/maddpg --plot img/bf16_check.png
 
 Each folder holds ``seed_<s>/evaluations.npz``; every run is cut to its first ``--episodes`` training episodes
 (10,000: 2e5 steps) and must have reached them. The rules, as registered (the headline's window of 200
@@ -17,7 +17,7 @@ evaluations and 90% any-step success):
   most 1.25 times float32's; else *worse*.
 
 ``--also`` folders (float32 runs on another machine, say) are reported beside the two, not decided on: they show
-how far two float32 readings of the same seeds lie apart.
+how far two float32 readings of the same seeds lie apart. Their runs that have not reached the cut are left out.
 """
 
 import argparse
@@ -33,6 +33,44 @@ EPISODES, THRESHOLD, WINDOW = 10_000, 0.9, 200
 LEVEL_MARGIN, EPISODES_RATIO, LEARNT = 0.05, 1.25, 0.5
 
 
+def plot(groups: dict[str, str], output: str, cut: int = EPISODES) -> None:
+    """
+    One panel per seed: the trailing 200-evaluation mean of any-step success of every group, to episode ``cut``.
+
+    :param groups: Label -> variant folder.
+    :param output: The image file.
+    :param cut: Training episodes shown.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = {
+        label: {
+            int(os.path.basename(os.path.dirname(path))[len("seed_") :]): evaluations.load(path, max_episodes=cut)
+            for path in sorted(glob.glob(os.path.join(folder, "seed_*", evaluations.FILE_NAME)))
+        }
+        for label, folder in groups.items()
+    }
+    seeds = sorted(set().union(*runs.values()))
+    fig, axes = plt.subplots(1, len(seeds), figsize=(5 * len(seeds), 4), sharey=True, squeeze=False)
+    for ax, seed in zip(axes[0], seeds):
+        for style, (label, by_seed) in zip(("-", "--", ":"), runs.items()):
+            if seed in by_seed:
+                data = by_seed[seed]
+                moving = evaluations.moving_average(evaluations.rate(data), WINDOW, head="nan")
+                ax.plot(evaluations.episodes(data), moving, style, label=label)
+        ax.axhline(THRESHOLD, color="gray", linewidth=0.8)
+        ax.set(title=f"seed {seed}", xlabel="training episodes", ylim=(-0.02, 1.02))
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(f"any-step success, trailing mean of {WINDOW} evaluations")
+    axes[0][0].legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(output, dpi=110)
+    plt.close(fig)
+
+
 @dataclass
 class Reading:
     """One run cut at the registered episode: its seed, level L and episodes E to 90% (reached or censored)."""
@@ -43,12 +81,14 @@ class Reading:
     reached: bool
 
 
-def read_group(folder: str, cut: int = EPISODES) -> list[Reading]:
+def read_group(folder: str, cut: int = EPISODES, skip_short: bool = False) -> list[Reading]:
     """
     The readings of every ``seed_<s>`` run in ``folder``, cut at ``cut`` training episodes.
 
     :param folder: A variant's folder (``.../<variant>``).
     :param cut: Training episodes per run to read.
+    :param skip_short: Leave out runs that have not reached ``cut`` (for groups only reported); otherwise such a run
+        stops the check with one line.
     :return: The readings, by seed.
     """
     readings = []
@@ -57,13 +97,15 @@ def read_group(folder: str, cut: int = EPISODES) -> list[Reading]:
         data = evaluations.load(path, max_episodes=cut)
         run_episodes = evaluations.episodes(data)
         if len(run_episodes) == 0 or run_episodes[-1] < cut:
+            if skip_short:
+                continue
             reached = 0 if len(run_episodes) == 0 else int(run_episodes[-1])
             raise SystemExit(f"{path}: {reached} training episodes, the check needs {cut}")
         level = evaluations.final_level(data, evaluations.SUCCESSES, WINDOW)
         value, hit = evaluations.episodes_to(data[evaluations.SUCCESSES], run_episodes, THRESHOLD, WINDOW)
         readings.append(Reading(seed, level, value, hit))
     if not readings:
-        raise SystemExit(f"{folder}: no seed_<s>/{evaluations.FILE_NAME}")
+        raise SystemExit(f"{folder}: no seed_<s>/{evaluations.FILE_NAME} with {cut} training episodes")
     return readings
 
 
@@ -103,7 +145,9 @@ def report(low_folder: str, full_folder: str, also: list[str], cut: int = EPISOD
         row(f"bf16: {low_folder}", low),
         row(f"float32: {full_folder}", full),
     ]
-    lines += [row(f"float32, reported only: {folder}", read_group(folder, cut)) for folder in also]
+    for folder in also:
+        readings = read_group(folder, cut, skip_short=True)  # runs short of the cut are left out of a reported group
+        lines.append(row(f"float32, reported only (runs past episode {cut}): {folder}", readings))
     decision, figures = decide(low, full)
     lines += ["", f"- bf16 against float32 over the first {cut} episodes: **{decision}**. {figures}."]
     return "\n".join(lines)
@@ -115,8 +159,13 @@ def main() -> None:
     parser.add_argument("float32_folder", help="the float32 runs' variant folder")
     parser.add_argument("--also", nargs="*", default=[], help="more float32 folders, reported beside, not decided on")
     parser.add_argument("--episodes", type=int, default=EPISODES, help="training episodes per run to read (registered: 10000)")
+    parser.add_argument("--plot", help="also draw the curves, a panel per seed, into this image file")
     args = parser.parse_args()
     print(report(args.bf16_folder, args.float32_folder, args.also, args.episodes))
+    if args.plot:
+        groups = {"bf16": args.bf16_folder, "float32": args.float32_folder}
+        groups.update({f"float32 ({os.path.basename(os.path.dirname(os.path.normpath(f)))})": f for f in args.also})
+        plot(groups, args.plot, args.episodes)
 
 
 if __name__ == "__main__":

@@ -571,7 +571,11 @@ def test_bf16_check_cuts_the_runs_and_applies_its_registered_rules(tmp_path):
     assert check.decide(check.read_group(same, cut), check.read_group(unlearnt, cut))[0] == "uninformative"
     # runs that never reach 90% count at the cut ("+" in the table)
     assert "500+" in check.report(unlearnt, full, [same], cut)
-    # a run short of the cut is refused with one line
+    # a run short of the cut is refused with one line where it is decided on, and left out where only reported
     short = group("short", [[1.0] * (cut - 1)])
     with pytest.raises(SystemExit, match="499 training episodes, the check needs 500"):
         check.read_group(short, cut)
+    mixed = group("mixed", [[1.0] * n, [1.0] * (cut - 1)])
+    assert f"reported only (runs past episode {cut}): {mixed} | 0 | 1.000" in check.report(same, full, [mixed], cut)
+    check.plot({"bf16": same, "float32": full, "mixed": mixed}, str(tmp_path / "curves.png"), cut)
+    assert (tmp_path / "curves.png").stat().st_size > 0
