@@ -33,6 +33,14 @@ EPISODES, THRESHOLD, WINDOW = 10_000, 0.9, 200
 LEVEL_MARGIN, EPISODES_RATIO, LEARNT = 0.05, 1.25, 0.5
 
 
+def load_runs(folder: str, cut: int = EPISODES) -> dict[int, dict[str, np.ndarray]]:
+    """The arrays of every ``seed_<s>`` run in ``folder``, cut at ``cut`` training episodes, by seed."""
+    return {
+        int(os.path.basename(os.path.dirname(path))[len("seed_") :]): evaluations.load(path, max_episodes=cut)
+        for path in sorted(glob.glob(os.path.join(folder, "seed_*", evaluations.FILE_NAME)))
+    }
+
+
 def plot(groups: dict[str, str], output: str, cut: int = EPISODES) -> None:
     """
     One panel per seed: the trailing 200-evaluation mean of any-step success of every group, to episode ``cut``.
@@ -46,13 +54,7 @@ def plot(groups: dict[str, str], output: str, cut: int = EPISODES) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = {
-        label: {
-            int(os.path.basename(os.path.dirname(path))[len("seed_") :]): evaluations.load(path, max_episodes=cut)
-            for path in sorted(glob.glob(os.path.join(folder, "seed_*", evaluations.FILE_NAME)))
-        }
-        for label, folder in groups.items()
-    }
+    runs = {label: load_runs(folder, cut) for label, folder in groups.items()}
     seeds = sorted(set().union(*runs.values()))
     fig, axes = plt.subplots(1, len(seeds), figsize=(5 * len(seeds), 4), sharey=True, squeeze=False)
     for ax, seed in zip(axes[0], seeds):
@@ -92,15 +94,13 @@ def read_group(folder: str, cut: int = EPISODES, skip_short: bool = False) -> li
     :return: The readings, by seed.
     """
     readings = []
-    for path in sorted(glob.glob(os.path.join(folder, "seed_*", evaluations.FILE_NAME))):
-        seed = int(os.path.basename(os.path.dirname(path))[len("seed_") :])
-        data = evaluations.load(path, max_episodes=cut)
+    for seed, data in sorted(load_runs(folder, cut).items()):
         run_episodes = evaluations.episodes(data)
         if len(run_episodes) == 0 or run_episodes[-1] < cut:
             if skip_short:
                 continue
             reached = 0 if len(run_episodes) == 0 else int(run_episodes[-1])
-            raise SystemExit(f"{path}: {reached} training episodes, the check needs {cut}")
+            raise SystemExit(f"{os.path.join(folder, f'seed_{seed}')}: {reached} training episodes, the check needs {cut}")
         level = evaluations.final_level(data, evaluations.SUCCESSES, WINDOW)
         value, hit = evaluations.episodes_to(data[evaluations.SUCCESSES], run_episodes, THRESHOLD, WINDOW)
         readings.append(Reading(seed, level, value, hit))
