@@ -5,6 +5,10 @@ decisions of every method. Written and committed before any pilot or study run.
 
     python scripts/analyze.py                       # every task with runs; prints markdown
     python scripts/analyze.py --json decisions.json
+    python scripts/analyze.py --followup            # also the 400-300 follow-up of each task's best method
+
+The follow-up's rules (README.md, "The 400-300 follow-up") were added on 2026-12-05, before any study run was
+analysed; the tables' Kaplan-Meier medians and episodes to 50% were added then too (reported, deciding nothing).
 
 Only complete runs count (``run.json`` says ``complete``); a method with fewer seeds than registered is reported
 as incomplete and decided on nothing.
@@ -71,6 +75,7 @@ def summary(runs: dict[int, dict[str, np.ndarray]]) -> dict[str, object]:
         out[f"episodes_to_{threshold}"] = [h[0] for h in hits]
         out[f"reached_{threshold}"] = [h[1] for h in hits]
         out[f"episodes_to_{threshold}_mean"] = float(np.mean([h[0] for h in hits])) if hits else None
+        out[f"episodes_to_{threshold}_km_median"] = evaluations.km_median([h[0] for h in hits], [h[1] for h in hits])
     return out
 
 
@@ -130,6 +135,58 @@ def decide(results: str, task: str) -> dict[str, object]:
     return {"summaries": summaries, "decisions": decisions}
 
 
+FOLLOWUP_NET = (400, 300)  # the follow-up's networks ...
+FOLLOWUP_SEEDS = (0, 1, 2)  # ... and seeds
+
+
+def best_method(task_report: dict[str, object]) -> str | None:
+    """
+    The method a task's 400-300 follow-up runs: the credited method with the highest seed-mean final success (ties:
+    the fewer seed-mean episodes to 90%, then study.yml's order); None when no method is credited.
+    """
+    decisions, summaries = task_report["decisions"], task_report["summaries"]
+    credited = [m for m, d in decisions.items() if isinstance(d, dict) and d["credited"]]
+    if not credited:
+        return None
+    order = list(CREDIT)
+    return min(credited, key=lambda m: (-summaries[m]["final_mean"], summaries[m]["episodes_to_0.9_mean"], order.index(m)))
+
+
+def followup(results: str, task: str, method: str) -> dict[str, object]:
+    """
+    The registered 400-300 follow-up of one task: ``method`` against MADDPG, both at 400-300, seeds 0-2, filed under
+    ``<task>-400-300``. It *holds* if the method helps against MADDPG by the study's rule; MADDPG is also judged by
+    the entry rule (below 0.30 in at least 2 of 3 seeds: the task is still hard for the larger networks).
+    """
+    folder = "-".join([task, *map(str, FOLLOWUP_NET)])
+    runs = {m: {s: r for s, r in load_runs(results, folder, m).items() if s in FOLLOWUP_SEEDS} for m in ("maddpg", method)}
+    summaries = {m: summary(r) for m, r in runs.items()}
+    missing = [f"{m} ({len(r)} of {len(FOLLOWUP_SEEDS)} seeds)" for m, r in runs.items() if len(r) < len(FOLLOWUP_SEEDS)]
+    if missing:
+        return {"folder": folder, "method": method, "decided": False, "why": "incomplete: " + ", ".join(missing),
+                "summaries": summaries}  # fmt: skip
+    below = sum(f < ENTRY_MAX_FINAL for f in summaries["maddpg"]["final"])
+    return {"folder": folder, "method": method, "decided": True, "holds": helps(summaries[method], summaries["maddpg"]),
+            "maddpg_seeds_below": below, "still_hard": below >= ENTRY_MIN_SEEDS, "summaries": summaries}  # fmt: skip
+
+
+def _table(summaries: dict[str, dict], decisions: dict[str, object]) -> None:
+    """Print the methods' metrics and decisions as a markdown table."""
+    print("| method | seeds | final success per seed | mean | reached 50% | episodes to 50% (mean, censored; KM median) "
+          "| reached 90% | episodes to 90% (mean, censored; KM median) | decision |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
+    for method, s in summaries.items():
+        finals = ", ".join(f"{f:.3f}" for f in s["final"])
+        mean = "-" if s["final_mean"] is None else f"{s['final_mean']:.3f}"
+        cells = []
+        for threshold in THRESHOLDS:
+            cells.append(f"{sum(s[f'reached_{threshold}'])} of {len(s['seeds'])}")
+            episodes, median = s[f"episodes_to_{threshold}_mean"], s[f"episodes_to_{threshold}_km_median"]
+            cells.append("-" if episodes is None else f"{episodes:.0f}; " + ("none" if median is None else f"{median:.0f}"))
+        print(f"| {method} | {len(s['seeds'])} | {finals} | {mean} | {' | '.join(cells)} | "
+              f"{decisions.get(method, '(baseline)')} |")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--results", default=os.path.join(STUDY, "results"))
@@ -139,11 +196,13 @@ def main() -> None:
         help="scripted and random levels (scripts/task_levels.py --json)",
     )
     parser.add_argument("--json", help="also write everything to this file")
+    parser.add_argument("--followup", action="store_true", help="also each task's 400-300 follow-up (README.md)")
     args = parser.parse_args()
-    scripted: dict[str, float] = {}
+    levels: dict[str, dict[str, float]] = {}
     if os.path.isfile(args.levels):
         with open(args.levels) as file:
-            scripted = {t: v["scripted"] for t, v in json.load(file)["levels"].items()}
+            levels = json.load(file)["levels"]
+    scripted = {t: v["scripted"] for t, v in levels.items()}
     report = {}
     for task in CANDIDATES:
         if not os.path.isdir(os.path.join(args.results, task)):
@@ -152,15 +211,26 @@ def main() -> None:
                         **decide(args.results, task)}  # fmt: skip
         e = report[task]["entry"]
         print(f"## {task}\nentry: {e}\ninformative k: {report[task]['k']}")
-        print("| method | seeds | final success per seed | mean | reached 90% | episodes to 90% (mean, censored) | decision |")
-        print("|---|---|---|---|---|---|---|")
-        for method, s in report[task]["summaries"].items():
-            finals = ", ".join(f"{f:.3f}" for f in s["final"])
-            mean = "-" if s["final_mean"] is None else f"{s['final_mean']:.3f}"
-            reached = f"{sum(s['reached_0.9'])} of {len(s['seeds'])}"
-            ep = "-" if s["episodes_to_0.9_mean"] is None else f"{s['episodes_to_0.9_mean']:.0f}"
-            print(f"| {method} | {len(s['seeds'])} | {finals} | {mean} | {reached} | {ep} | "
-                  f"{report[task]['decisions'].get(method, '(baseline)')} |")  # fmt: skip
+        if task in levels:
+            print(f"scripted level {levels[task]['scripted']:.3f}, random level {levels[task]['random']:.3f}")
+        _table(report[task]["summaries"], report[task]["decisions"])
+        if args.followup and e.get("enters"):
+            best = best_method(report[task])
+            if "incomplete" in report[task]["decisions"].values():
+                print("\n400-300 follow-up: not chosen until every method of the task is complete")
+            elif best is None:
+                report[task]["followup"] = {"method": None}
+                print("\n400-300 follow-up: none (no method is credited on this task)")
+            else:
+                report[task]["followup"] = f = followup(args.results, task, best)
+                if f["decided"]:
+                    hard = "still hard" if f["still_hard"] else "not hard"
+                    verdict = (f"{'holds' if f['holds'] else 'does not hold'}; 400-300 MADDPG below 0.30 in "
+                               f"{f['maddpg_seeds_below']} of 3 seeds ({hard})")  # fmt: skip
+                else:
+                    verdict = f["why"]
+                print(f"\n400-300 follow-up ({f['folder']}): {best} against maddpg: {verdict}")
+                _table(f["summaries"], {best: "holds" if f.get("holds") else "-"})
         print()
     if args.json:
         with open(args.json, "w") as file:

@@ -4,6 +4,8 @@ Run the exploration study's methods on one candidate task, packed, with checkpoi
 
     python scripts/run_study.py --task spread3 --methods maddpg --seeds 0 1 2 --pack-by method --pilot  # the pilot
     python scripts/run_study.py --task spread3 --k 16 --seeds 0 1 2 3 4 -j 2                           # the study
+    python scripts/run_study.py --task spread3 --k 16 --methods maddpg rnd --seeds 0 1 2 --net-arch 400 300
+
 
 Methods are the variants of ``study.yml``; ``--k`` sets the code length of the methods named ``macb_k*`` (the
 informative k, chosen by README.md's rule from the pilot's ``count1.json``). The runs of one seed share a process
@@ -12,7 +14,9 @@ packed with the others and get their own. Evaluation after every training episod
 Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; the same command again resumes unfinished
 packs and skips finished ones. ``--pilot`` also writes each run's count-1 levels when it finishes (the share of
 SimHash codes seen once over all the run's transitions, joint observation and action, at k = 8 ... 512) to
-``count1.json``. The script trains with the sb3_macb of the checkout it lives in.
+``count1.json``. ``--net-arch`` replaces study.yml's 64-64 networks (actors and critics) and files the runs under
+``results/<task>-<sizes>/`` (e.g. ``spread3-400-300``; the 400-300 follow-up of README.md). The script trains with
+the sb3_macb of the checkout it lives in.
 """
 
 import argparse
@@ -35,8 +39,14 @@ METHOD_TAGS = dict(zip(METHODS, ("m", "p", "k", "kc", "kci", "ks", "r", "c")))  
 PROBE_KS = (8, 16, 32, 64, 128, 256, 512)
 
 
+def task_folder(args: argparse.Namespace) -> str:
+    """The task's folder name under ``--out`` and ``--work``: the task, and the network sizes when they are not
+    study.yml's (``spread3-400-300``)."""
+    return args.task if args.net_arch is None else "-".join([args.task, *map(str, args.net_arch)])
+
+
 def _complete(args: argparse.Namespace, method: str, seed: int) -> bool:
-    path = os.path.join(args.out, args.task, method, f"seed_{seed}", "run.json")
+    path = os.path.join(args.out, task_folder(args), method, f"seed_{seed}", "run.json")
     if not os.path.isfile(path):
         return False
     with open(path) as file:
@@ -55,7 +65,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     for seed in args.seeds:
         for method in args.methods:
             if _complete(args, method, seed):
-                print(f"{args.task} {method} seed {seed}: already complete in {args.out}", flush=True)
+                print(f"{task_folder(args)} {method} seed {seed}: already complete in {args.out}", flush=True)
             else:
                 todo.append((method, seed))
     groups: list[list[tuple[str, int]]] = []
@@ -71,7 +81,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
         methods = dict.fromkeys(m for m, _ in group)
         seeds = dict.fromkeys(s for _, s in group)
         tag = "-".join(METHOD_TAGS[m] for m in methods) + "_seeds" + "-".join(map(str, seeds))
-        packs.append((os.path.join(args.work, args.task, tag), group))
+        packs.append((os.path.join(args.work, task_folder(args), tag), group))
     return packs
 
 
@@ -108,8 +118,10 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     runs = []
     try:
         for method, seed in jobs:
-            overrides = {"exploration.k": args.k} if method.startswith("macb_k") else None
-            folder = os.path.join(args.out, args.task, method, f"seed_{seed}")
+            overrides: dict = {"exploration.k": args.k} if method.startswith("macb_k") else {}
+            if args.net_arch is not None:
+                overrides["policy_kwargs"] = f"dict(net_arch={list(args.net_arch)})"
+            folder = os.path.join(args.out, task_folder(args), method, f"seed_{seed}")
             runs.append(make_run(env_id, seed, folder, [method], overrides, conf_file=CONFIG, n_timesteps=steps)[0])
         config = ExperimentConfig(env_id, runs, n_timesteps=steps, eval_freq=EPISODE_STEPS[args.task], eval_episodes=10,
                                   env_kwargs=dict(env_kwargs), command=command)  # fmt: skip
@@ -141,6 +153,13 @@ def main() -> None:
         default="seed",
         help="pack the methods of a seed together (default) or the seeds of a method",
     )
+    parser.add_argument(
+        "--net-arch",
+        type=int,
+        nargs="+",
+        metavar="UNITS",
+        help="hidden layer sizes of every actor and critic instead of study.yml's 64 64; runs go to <task>-<sizes>",
+    )
     parser.add_argument("--pilot", action="store_true", help="write each finished run's count1.json")
     parser.add_argument("-j", "--jobs", type=int, default=1, help="packs in parallel (one thread each)")
     parser.add_argument("--checkpoint-freq", type=int, default=20_000, help="steps per run between checkpoints")
@@ -151,6 +170,8 @@ def main() -> None:
         parser.error("--k (an integer >= 1) is required for the macb_k* methods")
     if args.jobs < 1 or args.checkpoint_freq < 1 or (args.n_timesteps is not None and args.n_timesteps < 1):
         parser.error("-j, --checkpoint-freq and -n must be >= 1")
+    if args.net_arch is not None and min(args.net_arch) < 1:
+        parser.error("--net-arch takes layer sizes >= 1, e.g. --net-arch 400 300")
     command = "python scripts/run_study.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     import sb3_macb
 

@@ -108,3 +108,50 @@ def test_the_registered_rules_on_made_up_runs(tmp_path):
     assert report["summaries"]["maddpg"]["reached_0.9"] == [False] * 5
     (task / "rnd" / "seed_4" / "run.json").write_text(json.dumps({"complete": False}))  # a run in progress
     assert analyze.decide(str(results), "spread3")["decisions"]["rnd"] == "incomplete"
+
+
+def test_net_arch_files_the_runs_beside_the_study_and_bad_sizes_are_refused(tmp_path):
+    out, work = tmp_path / "results", tmp_path / "work"
+    done = study("--task", "nav-success", "--methods", "maddpg", "--seeds", "0", "-n", "40", "--net-arch", "8", "6",
+                 "-o", str(out), "--work", str(work))  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    run = out / "nav-success-8-6" / "maddpg" / "seed_0"
+    assert json.loads((run / "run.json").read_text())["complete"] and not (out / "nav-success").exists()
+    assert yaml.safe_load((run / "config.yml").read_text())["policy_kwargs"] == "dict(net_arch=[8, 6])"
+    assert [p.name for p in (work / "nav-success-8-6").iterdir()] == ["m_seeds0"]
+    refused = study("--task", "nav-success", "--methods", "maddpg", "--net-arch", "0", "-o", str(out), "--work", str(work))
+    assert refused.returncode != 0 and "--net-arch" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def test_the_followup_picks_the_best_credited_method_and_applies_the_rule(tmp_path):
+    import analyze
+
+    results = tmp_path / "results"
+    task = results / "spread3"
+    levels = {"maddpg": 0.1, "macb_paper": 0.1, "macb_k": 0.1, "macb_k_center": 0.6, "macb_k_center_int": 0.7,
+              "macb_k_sketch": 0.2, "rnd": 0.65, "constant": 0.1}  # fmt: skip
+    for method, level in levels.items():
+        for seed in range(5):
+            fake_run(task / method / f"seed_{seed}", level)
+    report = analyze.decide(str(results), "spread3")
+    credited = sorted(m for m, d in report["decisions"].items() if d["credited"])
+    assert credited == ["macb_k_center", "macb_k_center_int", "rnd"]
+    assert analyze.best_method(report) == "macb_k_center_int"  # the highest mean of the credited
+    assert not analyze.followup(str(results), "spread3", "macb_k_center_int")["decided"]  # nothing run yet
+    big = results / "spread3-400-300"
+    for seed in range(3):
+        fake_run(big / "maddpg" / f"seed_{seed}", [0.1, 0.5, 0.2][seed])
+        fake_run(big / "macb_k_center_int" / f"seed_{seed}", 0.6)
+    f = analyze.followup(str(results), "spread3", "macb_k_center_int")
+    assert f["decided"] and f["holds"] and f["maddpg_seeds_below"] == 2 and f["still_hard"]
+    fake_run(big / "maddpg" / "seed_3", 0.9)  # not one of the follow-up's seeds: ignored
+    assert analyze.followup(str(results), "spread3", "macb_k_center_int")["holds"]
+    fake_run(big / "rnd" / "seed_0", 0.9)
+    assert not analyze.followup(str(results), "spread3", "rnd")["decided"]  # 1 of 3 seeds
+    (tmp_path / "levels.json").write_text(json.dumps({"levels": {"spread3": {"scripted": 0.99, "random": 0.0}}}))
+    printed = subprocess.run([sys.executable, str(STUDY / "scripts" / "analyze.py"), "--results", str(results),
+                              "--levels", str(tmp_path / "levels.json"), "--followup"],
+                             capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert printed.returncode == 0, printed.stderr
+    assert "spread3-400-300): macb_k_center_int against maddpg: holds" in printed.stdout
+    assert "KM median" in printed.stdout
