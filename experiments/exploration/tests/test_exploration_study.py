@@ -155,3 +155,19 @@ def test_the_followup_picks_the_best_credited_method_and_applies_the_rule(tmp_pa
     assert printed.returncode == 0, printed.stderr
     assert "spread3-400-300): macb_k_center_int against maddpg: holds" in printed.stdout
     assert "KM median" in printed.stdout
+
+
+def test_the_study_curves_draw_every_complete_method_and_refuse_an_unknown_task(tmp_path):
+    results = tmp_path / "results"
+    for method, seeds in (("maddpg", 5), ("rnd", 2)):
+        for seed in range(seeds):
+            fake_run(results / "spread3-400-300" / method / f"seed_{seed}", 0.1 * seed, episodes=300)
+    (results / "spread3-400-300" / "rnd" / "seed_1" / "run.json").write_text(json.dumps({"complete": False}))
+    script = str(STUDY / "scripts" / "plot_study.py")
+    done = subprocess.run([sys.executable, script, "--task", "spread3-400-300", "--results", str(results),
+                           "-o", str(tmp_path / "c.png")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "maddpg (5), rnd (1)" and (tmp_path / "c.png").stat().st_size > 10_000
+    refused = subprocess.run([sys.executable, script, "--task", "spread", "--results", str(results), "-o", "x.png"],
+                             capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert refused.returncode != 0 and "--task" in refused.stderr and "Traceback" not in refused.stderr
