@@ -171,3 +171,15 @@ def test_the_study_curves_draw_every_complete_method_and_refuse_an_unknown_task(
     refused = subprocess.run([sys.executable, script, "--task", "spread", "--results", str(results), "-o", "x.png"],
                              capture_output=True, text=True, timeout=120)  # fmt: skip
     assert refused.returncode != 0 and "--task" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def test_coverage_tells_the_scripted_policy_from_random_actions():
+    import coverage
+
+    from sb3_macb.envs.scripted import scripted_actions
+
+    rng = np.random.default_rng(0)
+    scripted = coverage.coverage("spread3", lambda obs, env: scripted_actions(env), 20, seed=5)
+    random = coverage.coverage("spread3", lambda obs, env: rng.uniform(-1, 1, (env.num_envs, 6)), 20, seed=5)
+    assert scripted["covered_last"] > 2.5 and scripted["near_success"] == 1.0 and scripted["distance_last"] < 0.1
+    assert random["covered_last"] < 0.5 and random["distance_last"] > 0.3
