@@ -1,3 +1,4 @@
+import warnings
 from collections import Counter
 
 import numpy as np
@@ -416,6 +417,34 @@ def test_macb_with_a_sketch_gives_at_most_the_exact_bonus_and_saves(tmp_path):
         MACB(table="sketch", sketch_depth=0)
     with pytest.raises(ValueError, match="table must be one of"):
         MACB(table="bloom")
+
+
+def test_a_saturated_sketch_is_measured_logged_and_warned_about():
+    from stable_baselines3.common.logger import configure
+
+    from sb3_macb.exploration.count_min import CountMinSketch
+
+    sketch = CountMinSketch(2, 10)  # rows of 11 and 13 counters
+    assert sketch.collision_rate == 0.0
+    sketch.add(np.array([0, 1, 2], dtype=np.uint64))  # cells 0, 1, 2 of each row
+    assert sketch.collision_rate == pytest.approx((3 / 11) * (3 / 13))
+    sketch.add(np.arange(3, 1000, dtype=np.uint64))
+    assert sketch.collision_rate == 1.0 and sketch.lookup(np.array([5000], dtype=np.uint64))[0] > 0
+    assert MACB(beta=0.8, k=16).sketch_collision_rate is None
+    for width, saturated in ((7, True), (1_000_003, False)):
+        model = make_model(MACB(beta=0.8, k=16, decimals=None, table="sketch", sketch_depth=2, sketch_width=width))
+        model.set_logger(configure(None, []))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model.learn(200)
+        rate = model.exploration.sketch_collision_rate
+        assert (rate > 0.9) if saturated else (rate < 1e-3)
+        model.logger.dump = lambda step=0: None  # (keep what dump_logs records)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            model.dump_logs()
+        assert model.logger.name_to_value["exploration/sketch_collision_rate"] == rate
+        assert any("sketch is saturated" in str(w.message) for w in caught) == saturated
 
 
 # --- RND --------------------------------------------------------------------------------------------------------------

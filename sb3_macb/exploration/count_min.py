@@ -56,6 +56,18 @@ class CountMinSketch:
     def nbytes(self) -> int:
         return self.counts.nbytes
 
+    @property
+    def collision_rate(self) -> float:
+        """
+        The chance that a key never counted gets a count above 0 (every one of its cells already in use): the
+        product over the rows of the share of their counters that are not 0. Near 0 the sketch counts as the exact
+        table does; near 1 it calls almost every new key seen, and its counts are overestimates.
+        """
+        rate = 1.0
+        for width, offset in self._rows:
+            rate *= np.count_nonzero(self.counts[offset : offset + width]) / width
+        return float(rate)
+
     def _cells(self, keys: np.ndarray) -> np.ndarray:
         """(n, depth) flat indices of each key's cells."""
         keys = np.asarray(keys, dtype=np.uint64)

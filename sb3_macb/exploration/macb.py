@@ -313,6 +313,15 @@ class MACB:
         return sum(t.num_count1 for t in self.tables) / codes if codes else 0.0
 
     @property
+    def sketch_collision_rate(self) -> float | None:
+        """
+        With ``table="sketch"``: the chance that a code never seen is counted as seen (the mean over the tables of
+        :attr:`~sb3_macb.exploration.count_min.CountMinSketch.collision_rate`); None with the exact table.
+        """
+        rates = [t.collision_rate for t in self.tables if isinstance(t, CountMinSketch)]
+        return float(np.mean(rates)) if rates else None
+
+    @property
     def nbytes(self) -> int:
         """Memory held by the count tables."""
         return sum(t.nbytes for t in self.tables)

@@ -3,6 +3,7 @@ import inspect
 import io
 import os
 import pathlib
+import warnings
 from collections.abc import Iterable
 from typing import Any, ClassVar, TypeVar
 
@@ -40,6 +41,8 @@ def flushing_denormals() -> bool:
 
 # weight of the discrete agents' mean squared logits in the actor loss (the MADDPG paper's and code's 1e-3)
 DISCRETE_LOGIT_PENALTY = 1e-3
+# above this chance that a code never seen is counted as seen, a count-min MACB warns that its sketch is too narrow
+SKETCH_SATURATED = 0.1
 
 
 class MADDPG(TD3):
@@ -596,6 +599,16 @@ class MADDPG(TD3):
             mean_bonus = self.replay_buffer.pop_mean_bonus() if isinstance(self.replay_buffer, MACBReplayBuffer) else None
             if mean_bonus is not None:
                 self.logger.record("exploration/mean_bonus", mean_bonus)
+            rates = [r for r in (getattr(e, "sketch_collision_rate", None) for e in explorations) if r is not None]
+            if rates:
+                self.logger.record("exploration/sketch_collision_rate", max(rates))
+                if max(rates) > SKETCH_SATURATED:
+                    warnings.warn(
+                        f"MACB's count-min sketch is saturated: more than {SKETCH_SATURATED:.0%} of the codes never seen are "
+                        "counted as seen, so counts are overestimated and bonuses too small; use a sketch_width well above "
+                        "the number of distinct codes, or table='exact' (exploration/sketch_collision_rate is logged)",
+                        stacklevel=2,
+                    )
         super().dump_logs()
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
