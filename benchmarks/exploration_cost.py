@@ -88,8 +88,7 @@ def intrinsic_us(plain: MADDPG, intrinsic: MADDPG, calls: int, blocks: int = 7) 
     for _ in range(blocks):
         for i, model in enumerate((plain, intrinsic)):
             start = time.perf_counter()
-            model.train(1, 100)
-            for _ in range(calls - 1):
+            for _ in range(calls):
                 model.train(1, 100)
             times[i].append((time.perf_counter() - start) / calls * 1e6)
     return float(np.median(times[0])), float(np.median(times[1]))
