@@ -39,6 +39,9 @@ from sb3_macb.common import evaluations
 
 THRESHOLD, WINDOW, MARGIN, COMMUNICATION_MARGIN = 0.9, 200, 0.05, 0.15
 NO_COMMUNICATION = ("random_landmark", "landmark_tour")
+REFERENCE_LEVELS = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "CommunicativeNavigation-sparse-reference.json"
+)
 
 
 @dataclass
@@ -141,7 +144,8 @@ def analyse(task_folder: str, expected_seeds: int, reference_path: str) -> str:
     tag = "INTERIM (fewer complete seeds than registered): " if interim else ""
     bar = no_communication_level(reference_path) + COMMUNICATION_MARGIN
     lines = [f"### {os.path.basename(os.path.normpath(task_folder))}", ""]
-    lines.append("| variant | complete seeds | final any-step success, mean +/- sample SD (seeds) | final final-step success | "
+    lines.append("| variant | complete seeds | final any-step success, mean +/- sample SD (seeds) "
+                 "| final final-step success | "
                  "reached 90% any-step | communicates | incomplete seeds |")  # fmt: skip
     lines.append("|---|---|---|---|---|---|---|")
     for variant in sorted(set(runs) | set(incomplete)):
@@ -151,7 +155,7 @@ def analyse(task_folder: str, expected_seeds: int, reference_path: str) -> str:
             lines.append(f"| {variant} | - | - | - | - | - | {incomplete_seeds} |")
             continue
 
-        def level(attribute: str) -> str:
+        def level(attribute: str, done: list = done) -> str:
             values = [getattr(r, attribute) for r in done]
             spread = f" +/- {np.std(values, ddof=1):.3f}" if len(values) > 1 else ""
             return f"{np.mean(values):.3f}{spread} ({', '.join(f'{v:.3f}' for v in values)})"
@@ -185,7 +189,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("task_folders", nargs="+")
     parser.add_argument("--expected-seeds", type=int, required=True, help="the seeds per variant registered")
-    parser.add_argument("--reference", default=os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "CommunicativeNavigation-sparse-reference.json"),
+    parser.add_argument("--reference", default=REFERENCE_LEVELS,
                         help="the scripted listeners' levels (scripts/reference_levels.py)")  # fmt: skip
     args = parser.parse_args()
     for folder in args.task_folders:

@@ -139,8 +139,10 @@ def analyse(task_folder: str, expected_seeds: int) -> str:
         if not done:
             lines.append(f"| {variant} | - | - | - | - | {waiting} |")
             continue
-        lines.append(f"| {variant} | {', '.join(str(r.seed) for r in done)} | {level([r.final_any for r in done])} | "
-                     f"{level([r.final_last for r in done])} | {level([r.collisions for r in done], 0)} | {waiting} |")  # fmt: skip
+        seeds = ", ".join(str(r.seed) for r in done)
+        collisions = level([r.collisions for r in done], 0)
+        lines.append(f"| {variant} | {seeds} | {level([r.final_any for r in done])} | "
+                     f"{level([r.final_last for r in done])} | {collisions} | {waiting} |")  # fmt: skip
     lines.append("")
     if not runs:
         return "\n".join(lines + ["- No complete runs yet: nothing to decide."])
@@ -154,7 +156,8 @@ def analyse(task_folder: str, expected_seeds: int) -> str:
         lines.append(f"- N1, the paper's claim (target {threshold:.3f} any-step success): {tag}**{decide_n1(decisions)}**.")
     for variant in MACB_VARIANTS:
         if variant in runs and "macb_constant" in runs:
-            as_runs = [[Run(r.seed, 0.0, False, r.final_any, r.final_last) for r in runs[v]] for v in (variant, "macb_constant")]
+            as_runs = [[Run(r.seed, 0.0, False, r.final_any, r.final_last) for r in runs[v]]
+                       for v in (variant, "macb_constant")]  # fmt: skip
             decision, figures = decide_c2(*as_runs)
             lines.append(f"- N2, {variant} against macb_constant: {tag}**{decision}**; {figures}.")
     for a, b, note in COLLISION_TESTS:

@@ -17,8 +17,8 @@ import os
 import sys
 
 import numpy as np
-
 from reference_policies import GoalListener, LandmarkTourListener, RandomLandmarkListener  # beside this script
+
 from sb3_macb.common.atomic import atomic_write
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 
@@ -33,13 +33,15 @@ def measure(policy, episodes: int, seed: int, reward: str = "sparse", batch: int
         env.seed(seed + start)
         obs, starting = env.reset(), np.ones(n, dtype=bool)
         reached, total, done = np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n, dtype=bool)
+        final = np.zeros(n, dtype=bool)  # success at the last step of the batch's (equal-length) episodes
         while not done.all():
             actions, _ = policy.predict(obs, episode_start=starting)
             obs, rewards, starting, infos = env.step(actions)
             success = np.array([info["agent_infos"]["listener_0"]["success"] for info in infos])
             reached |= success & ~done
             total += np.where(done, 0.0, rewards)
-            final = success if not done.any() else final
+            if not done.any():
+                final = success
             done |= starting
         any_step.append(reached)
         final_step.append(final)
@@ -53,13 +55,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=10_000)
     parser.add_argument("--seed", type=int, default=12345)
-    parser.add_argument("-o", "--out", default=os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "CommunicativeNavigation-sparse-reference.json"))
+    study = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    parser.add_argument("-o", "--out", default=os.path.join(study, "results", "CommunicativeNavigation-sparse-reference.json"))
     args = parser.parse_args()
     levels = {name: measure(cls(seed=args.seed), args.episodes, args.seed) for name, cls in POLICIES.items()}
     print("| listener | any-step success | final-step success | mean return | episodes |")
     print("|---|---|---|---|---|")
     for name, level in levels.items():
-        print(f"| {name} | {level['any_step']:.3f} | {level['final_step']:.3f} | {level['mean_return']:.2f} | {level['episodes']} |")
+        figures = f"{level['any_step']:.3f} | {level['final_step']:.3f} | {level['mean_return']:.2f}"
+        print(f"| {name} | {figures} | {level['episodes']} |")
     if args.out != "-":
         with atomic_write(args.out) as file:
             file.write(json.dumps(levels, indent=1).encode())

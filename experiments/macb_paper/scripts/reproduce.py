@@ -8,8 +8,8 @@ each run's evaluations as ``results/<Task>-<reward>[-<suffix>]/<variant>/seed_<s
     python scripts/reproduce.py --task comm-sparse --variants maddpg macb_joint macb_local macb_constant macb_k32 \\
         --seeds 0 1 2 3 4 --fast --suffix 4e4 --pack 5 -j 2
 
-Variants are those of the repository's ``zoo/hyperparams/maddpg.yml``, alone or combined with commas (``maddpg,refcode``: filed as
-``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
+Variants are those of the repository's ``zoo/hyperparams/maddpg.yml``, alone or combined with commas
+(``maddpg,refcode``: filed as ``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
 runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
 would be alone), or with ``--mix-seeds`` the runs of all seeds, ``--pack`` to a process (for few variants and many
 seeds). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; running the same command
@@ -105,7 +105,8 @@ def main() -> None:
                         help="keep every checkpoint's model in <work>/<pack>/models/ (for scripts/collapse_diagnostics.py)")
     parser.add_argument("--suffix", default="", help="results/<Task>-<reward>-SUFFIX/")
     parser.add_argument("-o", "--out", default=os.path.join(STUDY, "results"), help="default: the study's results/")
-    parser.add_argument("--work", default=os.path.join(STUDY, "logs", "reproduce"), help="checkpoints (not for git; default: the study's logs/reproduce)")
+    parser.add_argument("--work", default=os.path.join(STUDY, "logs", "reproduce"),
+                        help="checkpoints (not for git; default: the study's logs/reproduce)")
     args = parser.parse_args()
     if args.pack < 1:
         parser.error("--pack must be >= 1")

@@ -8,9 +8,10 @@ Episodes to threshold: the first evaluation at which the success rate averaged o
 evaluations (10 evaluations = 100 evaluation episodes by default) reaches the threshold. A run that never reaches
 it is censored at its last episode (marked ">"); the table says how many seeds reached it and gives the
 Kaplan-Meier median (none while fewer than half reached it), never a mean over censored values.
-``--metric final_successes`` uses the final-step success instead of the any-step success (the paper's). ``--max-episodes`` cuts every run at that many training episodes, to
-compare runs of different lengths at one budget (a run's first N episodes are the run it would have been with that
-budget: the same seed gives the same run, and nothing in the settings depends on the total budget).
+``--metric final_successes`` uses the final-step success instead of the any-step success (the paper's).
+``--max-episodes`` cuts every run at that many training episodes, to compare runs of different lengths at one budget
+(a run's first N episodes are the run it would have been with that budget: the same seed gives the same run, and
+nothing in the settings depends on the total budget).
 """
 
 import argparse
@@ -21,7 +22,6 @@ import os
 import numpy as np
 
 from sb3_macb.common import evaluations
-
 
 episodes_to = evaluations.episodes_to
 km_median = evaluations.km_median
@@ -83,9 +83,11 @@ def summarize(
         if packs and max(packs) > 1:  # the runs of a pack share one process: its wall time is theirs together
             wall += f" (a pack of {max(packs)})"
         median = km_median(reached, hit)
+        median_text = "not reached" if median is None else f"{median:.0f}"
+        finals_text = f"{np.mean(finals):.3f} +/- {sample_sd(finals):.3f} | {', '.join(f'{f:.3f}' for f in finals)}"
         lines.append(
-            f"| {variant} | {len(reached)} | {sum(hit)} of {len(hit)} | {'not reached' if median is None else f'{median:.0f}'} | "
-            f"{', '.join(per_seed)} | {np.mean(finals):.3f} +/- {sample_sd(finals):.3f} | {', '.join(f'{f:.3f}' for f in finals)} | "
+            f"| {variant} | {len(reached)} | {sum(hit)} of {len(hit)} | {median_text} | "
+            f"{', '.join(per_seed)} | {finals_text} | "
             f"{', '.join(map(str, lengths))} | {wall} |"
             + (f" {np.mean(crashes):.0f} +/- {sample_sd(crashes):.0f} |" if collisions else "")
         )

@@ -1,9 +1,12 @@
-"""The paper study's scripts (experiments/macb_paper/scripts/): episodes to a threshold, cutting runs at a budget, filing a sweep."""
+"""
+The paper study's scripts (experiments/macb_paper/scripts/): episodes to a threshold, cutting runs at a budget, filing a
+sweep.
+"""
 
 import csv
+import importlib.util
 import os
 import shutil
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -201,7 +204,8 @@ def test_nav_analysis_applies_its_registered_rules(tmp_path):
     assert "N1, the paper's claim (target 0.810 any-step success): INTERIM" in analysis.analyse(str(task), 3)
     write_nav_run(task / "macb_constant" / "seed_2", [0.9] * n, 2200)
     report = analysis.analyse(str(task), 3)
-    assert "- N1, macb_joint: **meets**" in report and "N1, the paper's claim (target 0.810 any-step success): **confirmed**" in report
+    assert "- N1, macb_joint: **meets**" in report
+    assert "N1, the paper's claim (target 0.810 any-step success): **confirmed**" in report
     # MACB 1.0 against the constant's 0.9 on both metrics, and every MACB seed above: credited
     assert "- N2, macb_state against macb_constant: **counting credited**" in report
     assert "- N3, macb_joint against maddpg (the paper: fewer): **macb_joint collides less**" in report
@@ -212,7 +216,8 @@ def test_nav_analysis_applies_its_registered_rules(tmp_path):
     for seed in range(3):
         write_nav_run(task / "macb_local" / f"seed_{seed}", [0.5] * n, 1000)
     report = analysis.analyse(str(task), 3)
-    assert "- N1, macb_local: **fails**" in report and "the paper's claim (target 0.810 any-step success): **refuted**" in report
+    assert "- N1, macb_local: **fails**" in report
+    assert "the paper's claim (target 0.810 any-step success): **refuted**" in report
     # MADDPG that learns little: the target is the floor, 0.2
     for seed in range(3):
         write_nav_run(task / "maddpg" / f"seed_{seed}", [0.05] * n, 2000)
@@ -331,7 +336,6 @@ def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
     import types
 
     import torch as th
-
     from reference_policies import GoalListener
 
     class Conflating(GoalListener):
