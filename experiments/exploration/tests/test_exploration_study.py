@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 STUDY = Path(__file__).resolve().parents[1]
@@ -183,3 +184,18 @@ def test_coverage_tells_the_scripted_policy_from_random_actions():
     random = coverage.coverage("spread3", lambda obs, env: rng.uniform(-1, 1, (env.num_envs, 6)), 20, seed=5)
     assert scripted["covered_last"] > 2.5 and scripted["near_success"] == 1.0 and scripted["distance_last"] < 0.1
     assert random["covered_last"] < 0.5 and random["distance_last"] > 0.3
+
+
+def test_listener_reach_tells_the_scripted_policy_from_random_actions():
+    import coverage
+
+    from sb3_macb.envs.scripted import scripted_actions
+
+    rng = np.random.default_rng(0)
+    scripted = coverage.listener_reach("comm6-wide", lambda obs, env: scripted_actions(env), 40, seed=5)
+    random = coverage.listener_reach("comm6-wide", lambda obs, env: rng.uniform(0, 1, (env.num_envs, 5)) * 2 - 1, 40, 5)
+    assert scripted["goal"] == 1.0 and scripted["any_landmark"] == 1.0 and scripted["goal_distance_last"] < 0.1
+    assert random["goal"] < 0.3 and random["goal_distance_last"] > 0.5
+    assert random["any_landmark"] >= random["goal"] and random["landmark_distance_last"] <= random["goal_distance_last"]
+    with pytest.raises(SystemExit, match="not a Communicative Navigation task"):
+        coverage.listener_reach("spread3", lambda obs, env: scripted_actions(env), 2, seed=5)
