@@ -12,10 +12,12 @@ Variants are those of the repository's ``zoo/hyperparams/maddpg.yml``, alone or 
 (``maddpg,refcode``: filed as ``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
 runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
 would be alone), or with ``--mix-seeds`` the runs of all seeds, ``--pack`` to a process (for few variants and many
-seeds). Each pack checkpoints into ``--work`` every ``--checkpoint-freq`` steps; running the same command
-again resumes unfinished packs from their checkpoints and skips finished ones, so the script can be stopped at
-any moment and re-run to go on. The ``evaluations.npz`` under results/ is rewritten at every checkpoint: it always
-holds the evaluations reached so far (``run.json`` says ``complete`` only at the end).
+seeds). Runs already complete under ``-o`` (``run.json`` says ``complete``) are left out: never trained again or
+overwritten. Each pack checkpoints into ``--work/<Task>-<reward>[-<suffix>]/<variants>_seeds<seeds>/`` every
+``--checkpoint-freq`` steps; running the same command again resumes unfinished packs from their checkpoints and
+skips finished ones, so the script can be stopped at any moment and re-run to go on. The ``evaluations.npz`` under
+results/ is rewritten at every checkpoint: it always holds the evaluations reached so far (``run.json`` says
+``complete`` only at the end).
 
 The script trains with the sb3_macb of the checkout it lives in (the repository root goes first on ``sys.path``, and
 the packs' processes inherit it), not with whatever sb3_macb the environment has installed: a git worktree of a fixed
@@ -23,6 +25,7 @@ commit runs that commit's library even when the virtual environment holds an edi
 """
 
 import argparse
+import json
 import os
 import shlex
 import shutil
@@ -40,24 +43,54 @@ TASKS = {
 }
 
 
+def results_name(args: argparse.Namespace) -> str:
+    """The runs' folder under ``-o`` and ``--work``: ``<Task>-<reward>[-<suffix>]``."""
+    return TASKS[args.task][1] + (f"-{args.suffix}" if args.suffix else "")
+
+
+def run_folder(args: argparse.Namespace, variant: str, seed: int) -> str:
+    """Where a run is filed: ``<out>/<Task>-<reward>[-<suffix>]/<variant, commas as '+'>/seed_<seed>``."""
+    return os.path.join(args.out, results_name(args), variant.replace(",", "+"), f"seed_{seed}")
+
+
+def complete(args: argparse.Namespace, variant: str, seed: int) -> bool:
+    """Whether the run is already filed under ``-o`` as complete."""
+    path = os.path.join(run_folder(args, variant, seed), "run.json")
+    try:
+        with open(path) as file:
+            info = json.load(file)
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and info.get("complete") is True
+
+
 def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     """
-    The packs: (work folder, [(variant, seed), ...]); the runs of one seed together, at most ``pack`` per pack, or
-    with ``--mix-seeds`` the runs of every seed in order (seed by seed, the variants of each in the order given) cut
-    into packs of ``pack``, so that few variants and several seeds still fill every process.
+    The packs: (work folder, [(variant, seed), ...]) of the runs not yet complete under ``-o``; the runs of one seed
+    together, at most ``pack`` per pack, or with ``--mix-seeds`` the runs of every seed in order (seed by seed, the
+    variants of each in the order given) cut into packs of ``pack``, so that few variants and several seeds still
+    fill every process. A pack's work folder is named by its variants and seeds, so that the same command finds it
+    again and commands for other variants never meet it.
     """
-    _, folder, _ = TASKS[args.task]
-    name = folder + (f"-{args.suffix}" if args.suffix else "")
-    if args.mix_seeds:
-        runs = [(variant, seed) for seed in args.seeds for variant in args.variants]
-        return [(os.path.join(args.work, name, f"mixed_{start // args.pack}"), runs[start : start + args.pack])
-                for start in range(0, len(runs), args.pack)]  # fmt: skip
-    packs = []
+    todo = []
     for seed in args.seeds:
-        for start in range(0, len(args.variants), args.pack):
-            variants = args.variants[start : start + args.pack]
-            tag = f"seed_{seed}" + ("" if len(args.variants) <= args.pack else f"_part{start // args.pack}")
-            packs.append((os.path.join(args.work, name, tag), [(v, seed) for v in variants]))
+        for variant in args.variants:
+            if complete(args, variant, seed):
+                print(f"{run_folder(args, variant, seed)}: already complete, left out", flush=True)
+            else:
+                todo.append((variant, seed))
+    if args.mix_seeds:
+        groups = [todo[start : start + args.pack] for start in range(0, len(todo), args.pack)]
+    else:
+        groups = []
+        for seed in args.seeds:
+            runs = [(v, s) for v, s in todo if s == seed]
+            groups += [runs[start : start + args.pack] for start in range(0, len(runs), args.pack)]
+    packs = []
+    for jobs in groups:
+        variants = "-".join(dict.fromkeys(v.replace(",", "+") for v, _ in jobs))
+        seeds = "-".join(dict.fromkeys(str(s) for _, s in jobs))
+        packs.append((os.path.join(args.work, results_name(args), f"{variants}_seeds{seeds}"), jobs))
     return packs
 
 
@@ -68,14 +101,13 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run
 
     th.set_num_threads(1)
-    env_id, folder, env_kwargs = TASKS[args.task]
-    root = os.path.join(args.out, folder + (f"-{args.suffix}" if args.suffix else ""))
+    env_id, _, env_kwargs = TASKS[args.task]
     runs = []
     try:
         for variant, seed in jobs:
             variants = variant.split(",") + (["fast"] if args.fast else [])  # "maddpg,refcode": applied in order
-            run_folder = os.path.join(root, variant.replace(",", "+"), f"seed_{seed}")
-            runs.append(make_run(env_id, seed, run_folder, variants, n_timesteps=args.n_timesteps)[0])
+            folder = run_folder(args, variant, seed)
+            runs.append(make_run(env_id, seed, folder, variants, n_timesteps=args.n_timesteps)[0])
         config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
         experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
         status = experiment.status()
@@ -117,6 +149,9 @@ def main() -> None:
     from sb3_macb.zoo.processes import run_packs
 
     packs = plan(args)
+    if not packs:
+        print("every run is complete", flush=True)
+        return
     failed = run_packs(run_pack, [(args, work, jobs, command) for work, jobs in packs], args.jobs)
     if failed:
         sys.exit(f"{failed} of {len(packs)} packs failed (see above)")

@@ -435,10 +435,10 @@ def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tm
 
     import yaml
 
-    def reproduce(*variants: str, pack: int, work: str = "work", returncode: int = 0) -> str:
+    def reproduce(*variants: str, pack: int, work: str = "work", out: str = "out", returncode: int = 0) -> str:
         command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--variants", *variants, "--seeds", "0",
                    "--fast", "--pack", str(pack), "-n", "60", "--checkpoint-freq", "40", "--work", str(tmp_path / work),
-                   "-o", str(tmp_path / "out")]  # fmt: skip
+                   "-o", str(tmp_path / out)]  # fmt: skip
         done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=STUDY)
         assert done.returncode == returncode, done.stderr
         return done.stdout + done.stderr
@@ -450,26 +450,39 @@ def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tm
     assert config["variants"] == ["maddpg", "refcode", "fast"] and config["exploration"] is None
     assert config["replay_buffer_kwargs"] == "dict(handle_timeout_termination=False)"
     assert (run / "evaluations.npz").exists()
-    experiment = json.loads((tmp_path / "work" / "CommunicativeNavigation-sparse" / "seed_0" / "experiment.json").read_text())
+    pack = tmp_path / "work" / "CommunicativeNavigation-sparse" / "maddpg+refcode_seeds0"
+    experiment = json.loads((pack / "experiment.json").read_text())
     assert experiment["config"]["env_kwargs"] == {"reward": "sparse", "terminate_on_success": True}
     # the two cannot share a pack's env: a clear error for that pack, nothing run
-    out = reproduce("maddpg", "maddpg,refcode", pack=2, work="work2", returncode=1)
+    out = reproduce("maddpg", "maddpg,refcode", pack=2, work="work2", out="out2", returncode=1)
     assert "share one env, but their env_kwargs differ" in out and "1 of 1 packs failed" in out
-    assert not (tmp_path / "out" / "CommunicativeNavigation-sparse" / "maddpg" / "seed_0").exists()
+    assert not (tmp_path / "out2" / "CommunicativeNavigation-sparse" / "maddpg" / "seed_0").exists()
 
 
 @pytest.mark.slow
 def test_reproduce_mix_seeds_fills_packs_across_seeds_with_the_same_runs(tmp_path):
     import argparse
+    import json
 
     reproduce = load_script("reproduce")
-    args = argparse.Namespace(task="comm-sparse", suffix="x", work="w", seeds=[0, 1, 2], variants=["a", "b"], pack=4,
-                              mix_seeds=True)  # fmt: skip
+    args = argparse.Namespace(task="comm-sparse", suffix="x", work="w", out=str(tmp_path / "plan"), seeds=[0, 1, 2],
+                              variants=["a", "b,c"], pack=4, mix_seeds=True)  # fmt: skip
     packs = reproduce.plan(args)
-    assert [jobs for _, jobs in packs] == [[("a", 0), ("b", 0), ("a", 1), ("b", 1)], [("a", 2), ("b", 2)]]
-    assert [os.path.basename(work) for work, _ in packs] == ["mixed_0", "mixed_1"]
+    assert [jobs for _, jobs in packs] == [[("a", 0), ("b,c", 0), ("a", 1), ("b,c", 1)], [("a", 2), ("b,c", 2)]]
+    assert [os.path.basename(work) for work, _ in packs] == ["a-b+c_seeds0-1", "a-b+c_seeds2"]
     args.mix_seeds = False  # the default: one seed per pack
-    assert [jobs for _, jobs in reproduce.plan(args)] == [[("a", 0), ("b", 0)], [("a", 1), ("b", 1)], [("a", 2), ("b", 2)]]
+    by_seed = [[("a", 0), ("b,c", 0)], [("a", 1), ("b,c", 1)], [("a", 2), ("b,c", 2)]]
+    assert [jobs for _, jobs in reproduce.plan(args)] == by_seed
+    # runs complete under -o are left out (a partial run is not); the packs of what is left are named by their runs
+    for variant, seed, done in [("a", 1, True), ("b+c", 2, True), ("a", 2, False)]:
+        folder = tmp_path / "plan" / "CommunicativeNavigation-sparse-x" / variant / f"seed_{seed}"
+        folder.mkdir(parents=True)
+        (folder / "run.json").write_text(json.dumps({"complete": done}))
+    packs = reproduce.plan(args)
+    assert [jobs for _, jobs in packs] == [[("a", 0), ("b,c", 0)], [("b,c", 1)], [("a", 2)]]
+    assert [os.path.basename(work) for work, _ in packs] == ["a-b+c_seeds0", "b+c_seeds1", "a_seeds2"]
+    args.pack = 1  # one-run packs of different variants never share a work folder
+    assert len({work for work, _ in reproduce.plan(args)}) == 4
 
     def run(seeds: list[str], out: str, *extra: str) -> Path:
         command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--variants", "maddpg", "--seeds", *seeds,
@@ -477,13 +490,20 @@ def test_reproduce_mix_seeds_fills_packs_across_seeds_with_the_same_runs(tmp_pat
                    "-o", str(tmp_path / out), *extra]  # fmt: skip
         done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=STUDY)
         assert done.returncode == 0, done.stderr
+        run.stdout = done.stdout
         return tmp_path / out / "CommunicativeNavigation-sparse" / "maddpg"
 
     mixed = run(["0", "1"], "mixed", "--mix-seeds", "--pack", "2")
-    assert (tmp_path / "mixed" / "work" / "CommunicativeNavigation-sparse" / "mixed_0").is_dir()
+    assert (tmp_path / "mixed" / "work" / "CommunicativeNavigation-sparse" / "maddpg_seeds0-1").is_dir()
     alone = run(["1"], "alone")
     a, b = np.load(mixed / "seed_1" / "evaluations.npz"), np.load(alone / "seed_1" / "evaluations.npz")
     assert len(a["results"]) > 0 and np.array_equal(a["results"], b["results"])
+    # the same command with the checkpoints gone (another machine): the complete run is neither trained nor rewritten
+    shutil.rmtree(tmp_path / "alone" / "work")
+    stamp = (alone / "seed_1" / "evaluations.npz").stat().st_mtime_ns
+    run(["1"], "alone")
+    assert "already complete, left out" in run.stdout and "every run is complete" in run.stdout
+    assert (alone / "seed_1" / "evaluations.npz").stat().st_mtime_ns == stamp and not (tmp_path / "alone" / "work").exists()
     assert not np.array_equal(a["results"], np.load(mixed / "seed_0" / "evaluations.npz")["results"])
 
 
