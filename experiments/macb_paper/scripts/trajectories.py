@@ -17,6 +17,14 @@ Per seed, for every pair of ``--pairs`` (default: MACB k 512 against the constan
 the two runs' evaluations are identical (returns of every evaluation episode, per agent and in total). Two runs that
 agree there have computed the same thing so far: their counts never changed a bonus that mattered.
 
+With ``--twins OTHER``, per run filed in both the task folder and ``OTHER`` (the same variant and seed, e.g. the
+short-buffer and registered-buffer headline runs): the last step up to which their evaluations are identical, and
+each one's final any-step / final-step success (the last ``--final`` evaluations). Twins made on one machine compute
+the same thing until their settings first matter (for the buffer: the first evaluation after the shorter one wraps).
+
+    python scripts/trajectories.py results/CommunicativeNavigation-sparse-4e4 \\
+        --twins results/CommunicativeNavigation-sparse-4e4-1e6
+
 Nothing here decides anything: the registered decisions are ``scripts/headline_analysis.py``'s.
 """
 
@@ -71,15 +79,7 @@ def run_row(run: dict[str, np.ndarray], args: argparse.Namespace, milestones: li
 
 def report(task_folder: str, args: argparse.Namespace) -> str:
     """The markdown tables for one task folder."""
-    runs: dict[tuple[int, str], dict[str, np.ndarray]] = {}
-    complete: dict[tuple[int, str], bool] = {}
-    for path in sorted(glob.glob(os.path.join(task_folder, "*", "seed_*", evaluations.FILE_NAME))):
-        folder = os.path.dirname(path)
-        variant, seed = os.path.basename(os.path.dirname(folder)), int(os.path.basename(folder)[len("seed_") :])
-        if (args.seeds and seed not in args.seeds) or (args.variants and variant not in args.variants):
-            continue
-        runs[seed, variant] = evaluations.load(path)
-        complete[seed, variant] = evaluations.is_complete(folder)
+    runs, complete = load_folder(task_folder, args)
     if not runs:
         raise SystemExit(f"No {evaluations.FILE_NAME} below {task_folder} for these seeds and variants")
     last = max(float(evaluations.episodes(run)[-1]) for run in runs.values())
@@ -116,6 +116,56 @@ def report(task_folder: str, args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+def load_folder(task_folder: str, args: argparse.Namespace) -> tuple[dict[tuple[int, str], dict], dict[tuple[int, str], bool]]:
+    """Every run below ``task_folder`` (within ``--seeds`` and ``--variants``), and whether each is complete."""
+    runs: dict[tuple[int, str], dict[str, np.ndarray]] = {}
+    complete: dict[tuple[int, str], bool] = {}
+    for path in sorted(glob.glob(os.path.join(task_folder, "*", "seed_*", evaluations.FILE_NAME))):
+        folder = os.path.dirname(path)
+        variant, seed = os.path.basename(os.path.dirname(folder)), int(os.path.basename(folder)[len("seed_") :])
+        if (args.seeds and seed not in args.seeds) or (args.variants and variant not in args.variants):
+            continue
+        runs[seed, variant] = evaluations.load(path)
+        complete[seed, variant] = evaluations.is_complete(folder)
+    return runs, complete
+
+
+def twins_report(task_folder: str, other: str, args: argparse.Namespace) -> str:
+    """The runs filed in both folders: how long they stay identical, and where each ends."""
+    first, first_complete = load_folder(task_folder, args)
+    second, second_complete = load_folder(other, args)
+    shared = sorted(set(first) & set(second), key=lambda key: (key[1], key[0]))
+    if not shared:
+        raise SystemExit(f"No run (variant and seed) is filed both below {task_folder} and below {other}")
+    names = [os.path.basename(os.path.normpath(folder)) for folder in (task_folder, other)]
+
+    def final(run: dict[str, np.ndarray], done: bool) -> str:
+        levels = [evaluations.final_level(run, metric, args.final) for metric in evaluations.SUCCESS_METRICS if metric in run]
+        return " / ".join(f"{level:.3f}" for level in levels) + ("" if done else " (incomplete)")
+
+    lines = [
+        f"### Twins: {names[0]} and {names[1]}",
+        "",
+        f"Final any-step / final-step success: mean of the last {args.final} evaluations.",
+        "",
+        f"| run | identical through step | {names[0]} | {names[1]} |",
+        "|---|---|---|---|",
+    ]
+    for seed, variant in shared:
+        a, b = first[seed, variant], second[seed, variant]
+        n = min(len(a[evaluations.TIMESTEPS]), len(b[evaluations.TIMESTEPS]))
+        if np.array_equal(a[evaluations.TIMESTEPS][:n], b[evaluations.TIMESTEPS][:n]):
+            step, whole = identical_until(a, b)
+            same = "differ from the first evaluation" if step is None else f"{step:,}" + (" (all recorded)" if whole else "")
+        else:
+            same = "evaluated at different steps"
+        lines.append(
+            f"| {variant} seed {seed} | {same} | {final(a, first_complete[seed, variant])} | "
+            f"{final(b, second_complete[seed, variant])} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("task_folders", nargs="+")
@@ -127,6 +177,13 @@ def main() -> None:
     parser.add_argument("--after", type=int, default=4000, help="episode after which collapses are counted")
     parser.add_argument("--floor", type=float, default=0.15, help="trailing any-step success below which a run is collapsed")
     parser.add_argument("--pairs", nargs="*", default=["macb_joint:macb_constant"], help="variant pairs a:b to compare")
+    parser.add_argument(
+        "--twins",
+        metavar="OTHER",
+        default=None,
+        help="compare each run with the run of the same variant and seed below OTHER instead",
+    )
+    parser.add_argument("--final", type=int, default=200, help="evaluations in the final level (with --twins)")
     args = parser.parse_args()
     for value, name in ((args.window, "--window"), (args.every, "--every")):
         if value < 1:
@@ -134,6 +191,13 @@ def main() -> None:
     for pair in args.pairs:
         if pair.count(":") != 1:
             parser.error(f"--pairs takes variant pairs as a:b, got {pair!r}")
+    if args.final < 1:
+        parser.error(f"--final must be at least 1, got {args.final}")
+    if args.twins is not None:
+        if len(args.task_folders) != 1:
+            parser.error("--twins compares one task folder with OTHER: give one task folder")
+        print(twins_report(args.task_folders[0], args.twins, args))
+        return
     for folder in args.task_folders:
         print(report(folder, args))
         print()

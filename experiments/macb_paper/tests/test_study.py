@@ -275,6 +275,30 @@ def test_trajectories_milestones_collapse_share_and_identical_prefix(tmp_path):
     assert "identical up to step 200,000 (everything recorded so far)" in trajectories.report(str(task), args)
 
 
+def test_trajectories_twins_compare_runs_of_one_variant_and_seed_in_two_folders(tmp_path):
+    import argparse
+
+    trajectories = load_script("trajectories")
+    short, long = tmp_path / "short", tmp_path / "long"
+    n = 300
+    write_headline_run(short / "maddpg" / "seed_0", [0.4] * n, [0.3] * n)
+    write_headline_run(long / "maddpg" / "seed_0", [0.4] * 100 + [1.0] * 200, [0.3] * 100 + [0.9] * 200, complete=False)
+    write_headline_run(short / "macb_joint" / "seed_1", [0.1] * n, [0.0] * n)  # filed in one folder only
+    write_headline_run(long / "macb_joint" / "seed_2", [0.1] * n, [0.0] * n)
+    # the long-buffer run's returns depart at evaluation 101 (step 202,000)
+    path = long / "maddpg" / "seed_0" / "evaluations.npz"
+    arrays = dict(np.load(path))
+    arrays["results"] = arrays["results"].copy()
+    arrays["results"][100:] += 1.0
+    np.savez(path, **arrays)
+    args = argparse.Namespace(seeds=None, variants=None, final=200)
+    report = trajectories.twins_report(str(short), str(long), args)
+    assert "| maddpg seed 0 | 200,000 | 0.400 / 0.300 | 1.000 / 0.900 (incomplete) |" in report
+    assert "macb_joint" not in report
+    with pytest.raises(SystemExit, match="No run"):
+        trajectories.twins_report(str(short), str(long), argparse.Namespace(seeds=[1], variants=None, final=200))
+
+
 def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
     import json
 
