@@ -25,7 +25,6 @@ commit runs that commit's library even when the virtual environment holds an edi
 """
 
 import argparse
-import json
 import os
 import shlex
 import shutil
@@ -35,6 +34,8 @@ STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # experimen
 CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
 if sys.path[:1] != [CHECKOUT]:
     sys.path.insert(0, CHECKOUT)  # this checkout's sb3_macb; spawned pack processes start with the same sys.path
+
+from sb3_macb.common import evaluations  # noqa: E402 (after the checkout goes first on sys.path)
 
 TASKS = {
     "comm-sparse": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-sparse", {"reward": "sparse"}),
@@ -53,17 +54,6 @@ def run_folder(args: argparse.Namespace, variant: str, seed: int) -> str:
     return os.path.join(args.out, results_name(args), variant.replace(",", "+"), f"seed_{seed}")
 
 
-def complete(args: argparse.Namespace, variant: str, seed: int) -> bool:
-    """Whether the run is already filed under ``-o`` as complete."""
-    path = os.path.join(run_folder(args, variant, seed), "run.json")
-    try:
-        with open(path) as file:
-            info = json.load(file)
-    except (OSError, ValueError):
-        return False
-    return isinstance(info, dict) and info.get("complete") is True
-
-
 def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     """
     The packs: (work folder, [(variant, seed), ...]) of the runs not yet complete under ``-o``; the runs of one seed
@@ -75,7 +65,7 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     todo = []
     for seed in args.seeds:
         for variant in args.variants:
-            if complete(args, variant, seed):
+            if evaluations.is_complete(run_folder(args, variant, seed)):
                 print(f"{run_folder(args, variant, seed)}: already complete, left out", flush=True)
             else:
                 todo.append((variant, seed))
