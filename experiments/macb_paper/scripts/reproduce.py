@@ -9,7 +9,15 @@ each run's evaluations as ``results/<Task>-<reward>[-<suffix>]/<variant>/seed_<s
         --seeds 0 1 2 3 4 --fast --suffix 4e4 --pack 5 -j 2
 
 Variants are those of the repository's ``zoo/hyperparams/maddpg.yml``, alone or combined with commas
-(``maddpg,refcode``: filed as ``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). The
+(``maddpg,refcode``: filed as ``maddpg+refcode``); ``--fast`` adds the ``fast`` variant (64-64 networks). A
+``KEY=VALUE`` item sets one hyperparameter on top of them (dotted keys set nested ones, the value is read as YAML):
+``macb_joint,exploration.k=32`` is filed as ``macb_joint+exploration.k=32``. ``--grid KEY=V1,V2,...`` (repeatable)
+crosses every variant with a grid of such settings, one run per point and seed, as for the paper's Table 1:
+
+    python scripts/reproduce.py --task comm-sparse --variants macb_joint --grid exploration.beta=0.05,0.2,0.4 \
+        --grid exploration.k=32,64,256,512 --seeds 0 1 2 --fast --suffix table1-4e4
+
+Every run's settings are checked before anything is created or trained. The
 runs of one seed are packed together (``--pack`` runs per process at most; each run is the same experiment it
 would be alone), or with ``--mix-seeds`` the runs of all seeds, ``--pack`` to a process (for few variants and many
 seeds). Runs already complete under ``-o`` (``run.json`` says ``complete``) are left out: never trained again or
@@ -25,10 +33,14 @@ commit runs that commit's library even when the virtual environment holds an edi
 """
 
 import argparse
+import itertools
 import os
 import shlex
 import shutil
 import sys
+from typing import Any
+
+import yaml
 
 STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # experiments/macb_paper
 CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
@@ -42,6 +54,55 @@ TASKS = {
     "comm-distance": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-distance", {"reward": "distance"}),
     "nav": ("sb3_macb/TwoAgentNavigation-v0", "TwoAgentNavigation-sparse", {}),
 }
+
+
+def split_variant(variant: str) -> tuple[list[str], dict[str, Any]]:
+    """
+    A variant string's names (from the zoo YAML's ``variants``, in order) and its ``KEY=VALUE`` settings (values read
+    as YAML): ``"macb_joint,exploration.k=32"`` -> ``(["macb_joint"], {"exploration.k": 32})``.
+    """
+    names, overrides = [], {}
+    for item in variant.split(","):
+        key, is_setting, value = item.partition("=")
+        if is_setting:
+            overrides[key] = yaml.safe_load(value)
+        else:
+            names.append(item)
+    return names, overrides
+
+
+def expand_grid(variants: list[str], grid: list[str]) -> list[str]:
+    """
+    Every variant crossed with every point of the grid (``KEY=V1,V2,...`` items, the last key varying fastest): the
+    variant strings with the point's ``KEY=VALUE`` settings appended, in that order.
+    """
+    axes = []
+    for item in grid:
+        key, _, values = item.partition("=")
+        if not key or "," in key or not all(values.split(",")):
+            raise ValueError(f"--grid {item!r}: give KEY=VALUE[,VALUE...], e.g. exploration.k=32,64")
+        axes.append([f"{key}={value}" for value in values.split(",")])
+    keys = [axis[0].partition("=")[0] for axis in axes]
+    if len(set(keys)) < len(keys):
+        raise ValueError(f"--grid: each key once, got {keys}")
+    return [",".join([variant, *point]) for variant in variants for point in itertools.product(*axes)]
+
+
+def check_variants(args: argparse.Namespace) -> None:
+    """Build every run's settings once (nothing is created): a bad variant, key or value raises its one-line error."""
+    from sb3_macb.zoo.experiment import ExperimentConfig, ExperimentError, make_run
+
+    env_id, _, env_kwargs = TASKS[args.task]
+    for variant in args.variants:
+        names, overrides = split_variant(variant)
+        if not all(names) or any(not key for key in overrides):
+            raise ValueError(f"--variants {variant!r}: an empty name or key")
+        try:
+            names += ["fast"] if args.fast else []
+            run, _ = make_run(env_id, 0, "check", names, overrides, n_timesteps=args.n_timesteps)
+            ExperimentConfig(env_id, [run], n_timesteps=args.n_timesteps, env_kwargs=env_kwargs)
+        except (ExperimentError, ValueError) as exc:
+            raise ValueError(f"--variants {variant!r}: {exc}") from None
 
 
 def results_name(args: argparse.Namespace) -> str:
@@ -95,9 +156,10 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     runs = []
     try:
         for variant, seed in jobs:
-            variants = variant.split(",") + (["fast"] if args.fast else [])  # "maddpg,refcode": applied in order
+            names, overrides = split_variant(variant)  # "maddpg,refcode": applied in order, then the settings
             folder = run_folder(args, variant, seed)
-            runs.append(make_run(env_id, seed, folder, variants, n_timesteps=args.n_timesteps)[0])
+            names += ["fast"] if args.fast else []
+            runs.append(make_run(env_id, seed, folder, names, overrides, n_timesteps=args.n_timesteps)[0])
         config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
         experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
         status = experiment.status()
@@ -114,7 +176,10 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", choices=sorted(TASKS), required=True)
-    parser.add_argument("--variants", nargs="+", required=True)
+    parser.add_argument("--variants", nargs="+", required=True,
+                        help="zoo variants, combined with commas, with optional KEY=VALUE settings")
+    parser.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                        help="cross every variant with these values of KEY (repeat for a grid)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("-n", "--n-timesteps", type=int, default=800_000, help="steps per run (the paper's 4e4 episodes)")
     parser.add_argument("--fast", action="store_true", help="64-64 networks (the 'fast' variant)")
@@ -132,6 +197,13 @@ def main() -> None:
     args = parser.parse_args()
     if args.pack < 1:
         parser.error("--pack must be >= 1")
+    from sb3_macb.zoo.experiment import ExperimentError
+
+    try:
+        args.variants = expand_grid(args.variants, args.grid)
+        check_variants(args)
+    except (ExperimentError, ValueError, yaml.YAMLError) as exc:
+        parser.exit(2, f"reproduce.py: error: {str(exc).splitlines()[0]}\n")
     command = "python scripts/reproduce.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     import sb3_macb
 

@@ -229,6 +229,82 @@ def test_nav_analysis_applies_its_registered_rules(tmp_path):
     assert analysis.decide_n3(runs([100, 110, 120]), runs([70, 75, 80])) == "more"
 
 
+def test_fig4_analysis_applies_its_registered_rules(tmp_path):
+    analysis = load_script("fig4_analysis")
+    sparse, distance, n = tmp_path / "CommunicativeNavigation-sparse-x", tmp_path / "CommunicativeNavigation-distance-x", 1000
+    for seed in range(3):
+        write_headline_run(sparse / "maddpg" / f"seed_{seed}", [0.4] * n, [0.3] * n)
+        write_headline_run(sparse / "macb_local" / f"seed_{seed}", [0.7 + 0.01 * seed] * n, [0.6] * n)
+        write_headline_run(sparse / "macb_joint" / f"seed_{seed}", [0.72] * n, [0.6] * n, complete=seed < 2)
+        write_headline_run(sparse / "macb_constant" / f"seed_{seed}", [0.6] * n, [0.5] * n)
+        # distance: MADDPG at 0.8 (target 0.72) from evaluation 400 (reached at ~episode 50,000); MACB from 100-120
+        write_headline_run(distance / "maddpg" / f"seed_{seed}", [0.0] * 400 + [0.8] * 600, [0.5] * n)
+        write_headline_run(distance / "macb_joint" / f"seed_{seed}", [0.0] * (100 + 10 * seed) + [0.8] * (900 - 10 * seed),
+                           [0.5] * n)  # fmt: skip
+        write_headline_run(distance / "macb_constant" / f"seed_{seed}", [0.0] * 600 + [0.8] * 400, [0.5] * n)
+    report = analysis.analyse(str(sparse), 3)
+    assert "- F1, macb_local against maddpg: INTERIM (fewer complete seeds than registered): **confirmed**" in report
+    write_headline_run(sparse / "macb_joint" / "seed_2", [0.72] * n, [0.6] * n)
+    report = analysis.analyse(str(sparse), 3)
+    assert "- F1, macb_local against maddpg: **confirmed** (macb_local ahead)" in report
+    assert "- F2, macb_joint against macb_local: **not detected** (macb_joint no difference detected)" in report
+    assert "- F3, macb_local against macb_constant: **counting credited**" in report  # +0.11 and +0.1, every seed above
+    assert "F4" not in report
+    report = analysis.analyse(str(distance), 3)
+    assert "- F4, macb_joint against maddpg: **confirmed** (faster)" in report
+    assert "- F4, final levels: macb_joint **no difference detected**" in report
+    assert "- F5, macb_joint against macb_constant: **attributed to the reward offset**" in report
+    assert "- F5, macb_constant against maddpg: **slower**" in report  # 80,000 against MADDPG's ~59,900 / 0.75
+    # the mirror of "ahead" and a worst seed at the other's mean
+    runs = lambda levels: [analysis.NavRun(i, {}, a, a, 0.0) for i, a in enumerate(levels)]  # noqa: E731
+    assert analysis.decide_level(runs([0.3, 0.3, 0.3]), runs([0.5, 0.5, 0.5]))[0] == "behind"
+    assert analysis.decide_level(runs([0.6, 0.6, 0.5]), runs([0.5, 0.5, 0.5]))[0] == "no difference detected"
+
+
+def test_table1_analysis_applies_its_registered_rules(tmp_path):
+    analysis = load_script("table1_analysis")
+    grid, base, n = tmp_path / "table1", tmp_path / "base", 300
+
+    def write(folder: Path, level: float, count1: float) -> None:
+        write_headline_run(folder, [level] * n, [level - 0.1] * n)
+        arrays = dict(np.load(folder / "evaluations.npz"))
+        arrays["count1_fraction"] = np.full(n, count1)
+        np.savez(folder / "evaluations.npz", **arrays)
+
+    counts = {32: 0.8, 64: 0.95, 256: 0.999, 512: 0.9999}
+    for seed in range(4):  # seed 3 is not registered: left out
+        for beta in analysis.BETAS:
+            for k in analysis.KS:
+                level = 0.5 if k == 32 else 0.6
+                if (beta, k) == (0.8, 512):
+                    write(base / "macb_joint" / f"seed_{seed}", level, counts[k])
+                elif (beta, k) == (0.8, 32):
+                    write(base / "macb_k32" / f"seed_{seed}", level, counts[k])
+                elif seed < 3 and not (beta == 0.05 and k == 64 and seed == 2):
+                    write(grid / f"macb_joint+exploration.beta={beta}+exploration.k={k}" / f"seed_{seed}", level, counts[k])
+        write(base / "maddpg" / f"seed_{seed}", 0.5 if seed < 3 else 0.0, 0.0)
+        write(base / "macb_constant" / f"seed_{seed}", 0.5, 0.0)
+    report = analysis.analyse(str(grid), str(base), 3)
+    assert "- Short of 3 complete seeds: beta 0.05, k 64." in report and "INTERIM" in report
+    write(grid / "macb_joint+exploration.beta=0.05+exploration.k=64" / "seed_2", 0.6, counts[64])
+    report = analysis.analyse(str(grid), str(base), 3)
+    assert "INTERIM" not in report
+    # 12 cells at 0.6 are above MADDPG's 0.5; the four k = 32 cells equal it
+    assert "- T1, MACB above MADDPG in most cells: **confirmed**; 12 of 16 cells above MADDPG's 0.500, 0 below" in report
+    assert "- T2, k = 512 row against k = 32 row: **confirmed**; row means 0.600 and 0.500" in report
+    assert "- T3, count-1 rises with k and reaches 0.99 at k = 512: **confirmed**" in report
+    assert "- T4, beta 0.8, k 512 against macb_constant: **counting credited**" in report
+    assert "- T4, beta 0.8, k 32 against macb_constant: **attributed to the reward offset**" in report
+    assert "| 512 |  | 0.600 (0.60, 0.60, 0.60), 100.0% |" in report
+    write(base / "maddpg" / "seed_0", 0.8, 0.0)  # MADDPG at 0.6 on average: no cell above, none 0.05 below
+    assert "**inconclusive**; 0 of 16 cells above MADDPG's 0.600, 0 below" in analysis.analyse(str(grid), str(base), 3)
+    for seed in range(3):
+        write(base / "maddpg" / f"seed_{seed}", 0.8, 0.0)
+    assert "**refuted**; 0 of 16 cells above MADDPG's 0.800, 16 below" in analysis.analyse(str(grid), str(base), 3)
+    write(grid / "macb_joint+exploration.beta=0.2+exploration.k=512" / "seed_0", 0.6, 0.95)
+    assert "**not confirmed (beta 0.2)**" in analysis.analyse(str(grid), str(base), 3)
+
+
 def test_complete_only_leaves_out_runs_in_progress(tmp_path):
     from sb3_macb.common import evaluations
 
@@ -481,6 +557,53 @@ def test_reproduce_files_combined_variants_and_refuses_to_pack_different_envs(tm
     out = reproduce("maddpg", "maddpg,refcode", pack=2, work="work2", out="out2", returncode=1)
     assert "share one env, but their env_kwargs differ" in out and "1 of 1 packs failed" in out
     assert not (tmp_path / "out2" / "CommunicativeNavigation-sparse" / "maddpg" / "seed_0").exists()
+
+
+def test_reproduce_grid_files_one_run_per_point_and_checks_every_setting_first(tmp_path):
+    import json
+
+    import yaml
+
+    from sb3_macb.zoo.experiment import make_run
+
+    reproduce = load_script("reproduce")
+    grid = reproduce.expand_grid(["macb_joint", "maddpg,refcode"], ["exploration.beta=0.05,0.8", "exploration.k=32"])
+    assert grid == ["macb_joint,exploration.beta=0.05,exploration.k=32", "macb_joint,exploration.beta=0.8,exploration.k=32",
+                    "maddpg,refcode,exploration.beta=0.05,exploration.k=32",
+                    "maddpg,refcode,exploration.beta=0.8,exploration.k=32"]  # fmt: skip
+    assert reproduce.expand_grid(["a"], []) == ["a"]
+    assert reproduce.split_variant(grid[2]) == (["maddpg", "refcode"], {"exploration.beta": 0.05, "exploration.k": 32})
+    # a point that repeats a variant's own settings is that variant's run (Table 1's beta 0.8, k 512 cell)
+    env_id = "sb3_macb/CommunicativeNavigation-v0"
+    same = make_run(env_id, 0, "f", ["macb_joint"], reproduce.split_variant("x,exploration.beta=0.8,exploration.k=512")[1])
+    assert same[0].hyperparams == make_run(env_id, 0, "f", ["macb_joint"])[0].hyperparams
+
+    def reproduce_cli(*extra: str) -> subprocess.CompletedProcess:
+        command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--seeds", "0", "--fast", "-n", "60",
+                   "--checkpoint-freq", "40", "--work", str(tmp_path / "work"), "-o", str(tmp_path / "out"), *extra]  # fmt: skip
+        return subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=STUDY)
+
+    # bad settings: one line naming the run and what is allowed, before anything is created
+    for extra, message in [
+        (["--variants", "macb_joint", "--grid", "exploration.k=32,-1"], "k (the hash code length) must be an integer >= 1"),
+        (["--variants", "macb_joint", "--grid", "exploration.bta=1"], "Unknown MACB option(s) ['bta']"),
+        (["--variants", "macb_joint", "--grid", "exploration.k=32,,64"], "give KEY=VALUE[,VALUE...]"),
+        (["--variants", "macb_joint,bogus=1"], "Unknown hyperparameter(s)"),
+    ]:
+        done = reproduce_cli(*extra)
+        assert done.returncode == 2 and message in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+        assert not (tmp_path / "out").exists() and not (tmp_path / "work").exists()
+    done = reproduce_cli("--variants", "macb_joint", "--grid", "exploration.beta=0.05", "--grid", "exploration.k=32,64")
+    assert done.returncode == 0, done.stderr
+    task = tmp_path / "out" / "CommunicativeNavigation-sparse"
+    assert sorted(os.listdir(task)) == ["macb_joint+exploration.beta=0.05+exploration.k=32",
+                                        "macb_joint+exploration.beta=0.05+exploration.k=64"]  # fmt: skip
+    for k in (32, 64):
+        run = task / f"macb_joint+exploration.beta=0.05+exploration.k={k}" / "seed_0"
+        config = yaml.safe_load((run / "config.yml").read_text())
+        assert config["exploration"] == {"beta": 0.05, "k": k, "scope": "joint"} and config["variants"] == ["macb_joint", "fast"]
+        assert json.loads((run / "run.json").read_text())["complete"] is True
+    assert "already complete" in reproduce_cli("--variants", "macb_joint,exploration.beta=0.05,exploration.k=64").stdout
 
 
 @pytest.mark.slow
