@@ -15,16 +15,16 @@ The rules, as registered. A cell's *success* is its seed mean of the final level
 the last 200 evaluations), its *count-1* the seed mean of the table's fraction of codes seen once at the last
 evaluation.
 
-- T1, "with MACB the success rate is higher than MADDPG's most of the time": a cell is *above* MADDPG if its success
+- K1, "with MACB the success rate is higher than MADDPG's most of the time": a cell is *above* MADDPG if its success
   is at least 0.05 above MADDPG's and its worst seed is above MADDPG's seed mean; *below* in the mirror case. The
   claim is *confirmed* if at least 9 of the 16 cells are above, *refuted* if at least 8 are below, otherwise
   *inconclusive*.
-- T2, "k = 32 loses information" (the paper's k = 32 row is its weakest but one, its k = 512 row the best): the mean
+- K2, "k = 32 loses information" (the paper's k = 32 row gains little over MADDPG, its k = 512 row is the best): the mean
   success of the k = 512 row against the k = 32 row (four cells each): *confirmed* if the k = 512 row is at least
   0.05 higher, *refuted* if the k = 32 row is at least 0.05 higher, otherwise *no difference detected*.
-- T3, count-1 "increases as k, and at k = 512 converges to 100%": *confirmed* if in every beta column count-1
+- K3, count-1 "increases as k, and at k = 512 converges to 100%": *confirmed* if in every beta column count-1
   rises strictly with k and is at least 0.99 at k = 512; otherwise *not confirmed*, with the columns that break it.
-- T4, counts or offset: each cell of the beta = 0.8 column against ``macb_constant`` by the headline's rule C2.
+- K4, counts or offset: each cell of the beta = 0.8 column against ``macb_constant`` by the headline's rule C2.
 - Reported, not decided: the best cell, and the best beta of each k row (the paper: a larger k needs a larger beta).
 """
 
@@ -99,7 +99,7 @@ def success(runs: list[CellRun]) -> float:
 
 
 def analyse(task_folder: str, base_folder: str, seeds: int) -> str:
-    """The markdown report of T1-T4 and the table."""
+    """The markdown report of K1-K4 and the table."""
     cells, base, missing = load(task_folder, base_folder, seeds)
     tag = "INTERIM (cells short of the registered seeds): " if missing else ""
     lines = ["### Table 1: final any-step success (seed mean, per seed) and count-1 at the end", ""]
@@ -122,27 +122,27 @@ def analyse(task_folder: str, base_folder: str, seeds: int) -> str:
         up = [cell for cell, runs in complete.items() if above(runs, maddpg)]
         down = [cell for cell, runs in complete.items() if above(maddpg, runs)]
         decision = "confirmed" if len(up) >= MAJORITY else "refuted" if len(down) >= 16 - MAJORITY + 1 else "inconclusive"
-        lines.append(f"- T1, MACB above MADDPG in most cells: {tag}**{decision}**; {len(up)} of {len(complete)} cells "
+        lines.append(f"- K1, MACB above MADDPG in most cells: {tag}**{decision}**; {len(up)} of {len(complete)} cells "
                      f"above MADDPG's {success(maddpg):.3f}, {len(down)} below (confirmed at {MAJORITY} above, refuted at "
                      f"{16 - MAJORITY + 1} below).")  # fmt: skip
     rows = {k: [success(cells[(b, k)]) for b in BETAS if cells.get((b, k))] for k in (32, 512)}
     if all(rows.values()):
         difference = float(np.mean(rows[512]) - np.mean(rows[32]))
         decision = "confirmed" if difference >= MARGIN else "refuted" if difference <= -MARGIN else "no difference detected"
-        lines.append(f"- T2, k = 512 row against k = 32 row: {tag}**{decision}**; row means {np.mean(rows[512]):.3f} "
+        lines.append(f"- K2, k = 512 row against k = 32 row: {tag}**{decision}**; row means {np.mean(rows[512]):.3f} "
                      f"and {np.mean(rows[32]):.3f} (difference {difference:+.3f}, decided at +/-{MARGIN}).")  # fmt: skip
     counts = {(b, k): float(np.mean([r.count1 for r in runs])) for (b, k), runs in complete.items()}
     if len(counts) == len(BETAS) * len(KS):
         broken = [b for b in BETAS
                   if any(counts[(b, k1)] >= counts[(b, k2)] for k1, k2 in zip(KS, KS[1:])) or counts[(b, 512)] < COUNT1_AT_512]  # fmt: skip
         decision = "confirmed" if not broken else f"not confirmed (beta {', '.join(map(str, broken))})"
-        lines.append(f"- T3, count-1 rises with k and reaches {COUNT1_AT_512} at k = 512: {tag}**{decision}**.")
+        lines.append(f"- K3, count-1 rises with k and reaches {COUNT1_AT_512} at k = 512: {tag}**{decision}**.")
     for k in KS:
         if cells.get((0.8, k)) and base.get("macb_constant"):
             as_runs = [[Run(r.seed, 0.0, False, r.final_any, r.final_last) for r in g]
                        for g in (cells[(0.8, k)], base["macb_constant"])]  # fmt: skip
             decision, figures = decide_c2(*as_runs)
-            lines.append(f"- T4, beta 0.8, k {k} against macb_constant: {tag}**{decision}**; {figures}.")
+            lines.append(f"- K4, beta 0.8, k {k} against macb_constant: {tag}**{decision}**; {figures}.")
     if complete:
         best = max(complete, key=lambda cell: success(complete[cell]))
         lines.append(f"- Reported: the best cell is beta {best[0]}, k {best[1]} ({success(complete[best]):.3f}); the best "

@@ -290,11 +290,11 @@ def test_table1_analysis_applies_its_registered_rules(tmp_path):
     report = analysis.analyse(str(grid), str(base), 3)
     assert "INTERIM" not in report
     # 12 cells at 0.6 are above MADDPG's 0.5; the four k = 32 cells equal it
-    assert "- T1, MACB above MADDPG in most cells: **confirmed**; 12 of 16 cells above MADDPG's 0.500, 0 below" in report
-    assert "- T2, k = 512 row against k = 32 row: **confirmed**; row means 0.600 and 0.500" in report
-    assert "- T3, count-1 rises with k and reaches 0.99 at k = 512: **confirmed**" in report
-    assert "- T4, beta 0.8, k 512 against macb_constant: **counting credited**" in report
-    assert "- T4, beta 0.8, k 32 against macb_constant: **attributed to the reward offset**" in report
+    assert "- K1, MACB above MADDPG in most cells: **confirmed**; 12 of 16 cells above MADDPG's 0.500, 0 below" in report
+    assert "- K2, k = 512 row against k = 32 row: **confirmed**; row means 0.600 and 0.500" in report
+    assert "- K3, count-1 rises with k and reaches 0.99 at k = 512: **confirmed**" in report
+    assert "- K4, beta 0.8, k 512 against macb_constant: **counting credited**" in report
+    assert "- K4, beta 0.8, k 32 against macb_constant: **attributed to the reward offset**" in report
     assert "| 512 |  | 0.600 (0.60, 0.60, 0.60), 100.0% |" in report
     write(base / "maddpg" / "seed_0", 0.8, 0.0)  # MADDPG at 0.6 on average: no cell above, none 0.05 below
     assert "**inconclusive**; 0 of 16 cells above MADDPG's 0.600, 0 below" in analysis.analyse(str(grid), str(base), 3)
