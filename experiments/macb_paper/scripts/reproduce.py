@@ -33,6 +33,7 @@ commit runs that commit's library even when the virtual environment holds an edi
 """
 
 import argparse
+import hashlib
 import itertools
 import os
 import shlex
@@ -49,6 +50,7 @@ if sys.path[:1] != [CHECKOUT]:
 
 from sb3_macb.common import evaluations  # noqa: E402 (after the checkout goes first on sys.path)
 
+MAX_NAME = 120  # longest variants part of a pack's work folder name kept as it is (a name may have 255 bytes)
 TASKS = {
     "comm-sparse": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-sparse", {"reward": "sparse"}),
     "comm-distance": ("sb3_macb/CommunicativeNavigation-v0", "CommunicativeNavigation-distance", {"reward": "distance"}),
@@ -121,7 +123,8 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
     together, at most ``pack`` per pack, or with ``--mix-seeds`` the runs of every seed in order (seed by seed, the
     variants of each in the order given) cut into packs of ``pack``, so that few variants and several seeds still
     fill every process. A pack's work folder is named by its variants and seeds, so that the same command finds it
-    again and commands for other variants never meet it.
+    again and commands for other variants never meet it (a long list of variants by the first, their number and a
+    digest of them all).
     """
     todo = []
     for seed in args.seeds:
@@ -139,7 +142,11 @@ def plan(args: argparse.Namespace) -> list[tuple[str, list[tuple[str, int]]]]:
             groups += [runs[start : start + args.pack] for start in range(0, len(runs), args.pack)]
     packs = []
     for jobs in groups:
-        variants = "-".join(dict.fromkeys(v.replace(",", "+") for v, _ in jobs))
+        names = list(dict.fromkeys(v.replace(",", "+") for v, _ in jobs))
+        variants = "-".join(names)
+        if len(variants) > MAX_NAME:  # a grid's packs: the first run's name, how many more, and a digest of them all
+            digest = hashlib.sha256(variants.encode()).hexdigest()[:12]
+            variants = f"{names[0]}-and-{len(names) - 1}-more-{digest}"
         seeds = "-".join(dict.fromkeys(str(s) for _, s in jobs))
         packs.append((os.path.join(args.work, results_name(args), f"{variants}_seeds{seeds}"), jobs))
     return packs

@@ -604,6 +604,17 @@ def test_reproduce_grid_files_one_run_per_point_and_checks_every_setting_first(t
         assert config["exploration"] == {"beta": 0.05, "k": k, "scope": "joint"} and config["variants"] == ["macb_joint", "fast"]
         assert json.loads((run / "run.json").read_text())["complete"] is True
     assert "already complete" in reproduce_cli("--variants", "macb_joint,exploration.beta=0.05,exploration.k=64").stdout
+    # a pack of a grid's runs has a work folder name that fits a file system's 255 bytes, one per set of runs
+    import argparse
+
+    args = argparse.Namespace(task="comm-sparse", suffix="", work="w", out=str(tmp_path / "plan"), seeds=[0],
+                              pack=8, mix_seeds=False, variants=reproduce.expand_grid(
+                                  ["macb_joint"], ["exploration.beta=0.05,0.2", "exploration.k=32,64,256,512"]))  # fmt: skip
+    (work, jobs), = reproduce.plan(args)
+    name = os.path.basename(work)
+    assert len(jobs) == 8 and len(name) < 255 and name.startswith("macb_joint+exploration.beta=0.05+exploration.k=32-and-7-more-")
+    args.variants = args.variants[:7]
+    assert os.path.basename(reproduce.plan(args)[0][0]) != name
 
 
 @pytest.mark.slow
