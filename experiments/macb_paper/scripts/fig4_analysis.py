@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from headline_analysis import MARGIN, WINDOW, Run, complete_runs, decide_c2  # noqa: E402  (sibling scripts)
-from nav_analysis import FLOOR, FRACTION, NavRun  # noqa: E402
+from nav_analysis import FLOOR, FRACTION, NavRun, variant_table  # noqa: E402
 
 from sb3_macb.common import evaluations  # noqa: E402
 
@@ -102,27 +102,9 @@ def c2(a: list[NavRun], constant: list[NavRun]) -> tuple[str, str]:
     return decide_c2(*as_runs)
 
 
-def table(task_folder: str, runs: dict[str, list[NavRun]], incomplete: dict[str, list[int]]) -> list[str]:
-    """The per-variant table: final levels per seed and episodes to 90% any-step success."""
-    lines = [f"### {os.path.basename(os.path.normpath(task_folder))}", ""]
-    lines.append("| variant | complete seeds | final any-step success, mean +/- sample SD (seeds) | final final-step "
-                 "success | episodes to 90% any-step (per seed) | incomplete seeds |")  # fmt: skip
-    lines.append("|---|---|---|---|---|---|")
-
-    def level(values: list[float]) -> str:
-        spread = f" +/- {np.std(values, ddof=1):.3f}" if len(values) > 1 else ""
-        return f"{np.mean(values):.3f}{spread} ({', '.join(f'{v:.3f}' for v in values)})"
-
-    for variant in sorted(set(runs) | set(incomplete)):
-        done = runs.get(variant, [])
-        waiting = ", ".join(map(str, sorted(incomplete.get(variant, [])))) or "-"
-        if not done:
-            lines.append(f"| {variant} | - | - | - | - | {waiting} |")
-            continue
-        to90 = ", ".join(f"{e:.0f}" if ok else f">{e:.0f}" for e, ok in (r.episodes_to(0.9) for r in done))
-        lines.append(f"| {variant} | {', '.join(str(r.seed) for r in done)} | {level([r.final_any for r in done])} | "
-                     f"{level([r.final_last for r in done])} | {to90} | {waiting} |")  # fmt: skip
-    return lines + [""]
+def episodes_to_90(runs: list[NavRun]) -> str:
+    """Each run's episodes to 90% any-step success (">" and its last episode if it never gets there)."""
+    return ", ".join(f"{e:.0f}" if ok else f">{e:.0f}" for e, ok in (r.episodes_to(0.9) for r in runs))
 
 
 def analyse(task_folder: str, expected_seeds: int) -> str:
@@ -130,7 +112,7 @@ def analyse(task_folder: str, expected_seeds: int) -> str:
     runs, incomplete = load_runs(task_folder)
     interim = any(len(runs.get(v, [])) < expected_seeds for v in set(runs) | set(incomplete)) or not runs
     tag = "INTERIM (fewer complete seeds than registered): " if interim else ""
-    lines = table(task_folder, runs, incomplete)
+    lines = variant_table(task_folder, runs, incomplete, "episodes to 90% any-step (per seed)", episodes_to_90)
     name = os.path.basename(os.path.normpath(task_folder))
     if "-distance" in name:
         if "macb_joint" in runs and "maddpg" in runs:

@@ -30,6 +30,7 @@ threshold when its trailing 200-evaluation mean does; a run that never does is c
 import argparse
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,31 +120,37 @@ def decide_n3(a: list[NavRun], b: list[NavRun]) -> str:
     return "no difference detected"
 
 
-def analyse(task_folder: str, expected_seeds: int) -> str:
-    """The markdown report of N1-N3 for one task folder."""
-    runs, incomplete = load_runs(task_folder)
-    interim = any(len(runs.get(v, [])) < expected_seeds for v in set(runs) | set(incomplete)) or not runs
-    tag = "INTERIM (fewer complete seeds than registered): " if interim else ""
+def level(values: list[float], digits: int = 3) -> str:
+    """Seed mean +/- sample SD, then the seeds' values."""
+    spread = f" +/- {np.std(values, ddof=1):.{digits}f}" if len(values) > 1 else ""
+    return f"{np.mean(values):.{digits}f}{spread} ({', '.join(f'{v:.{digits}f}' for v in values)})"
+
+
+def variant_table(task_folder: str, runs: dict[str, list[NavRun]], incomplete: dict[str, list[int]], column: str,
+                  cell: Callable[[list[NavRun]], str]) -> list[str]:  # fmt: skip
+    """The per-variant table (final levels of both success metrics by seed) with one more ``column`` from ``cell``."""
     lines = [f"### {os.path.basename(os.path.normpath(task_folder))}", ""]
     lines.append("| variant | complete seeds | final any-step success, mean +/- sample SD (seeds) | final final-step "
-                 "success | training collisions at the end | incomplete seeds |")  # fmt: skip
+                 f"success | {column} | incomplete seeds |")  # fmt: skip
     lines.append("|---|---|---|---|---|---|")
-
-    def level(values: list[float], digits: int = 3) -> str:
-        spread = f" +/- {np.std(values, ddof=1):.{digits}f}" if len(values) > 1 else ""
-        return f"{np.mean(values):.{digits}f}{spread} ({', '.join(f'{v:.{digits}f}' for v in values)})"
-
     for variant in sorted(set(runs) | set(incomplete)):
         done = runs.get(variant, [])
         waiting = ", ".join(map(str, sorted(incomplete.get(variant, [])))) or "-"
         if not done:
             lines.append(f"| {variant} | - | - | - | - | {waiting} |")
             continue
-        seeds = ", ".join(str(r.seed) for r in done)
-        collisions = level([r.collisions for r in done], 0)
-        lines.append(f"| {variant} | {seeds} | {level([r.final_any for r in done])} | "
-                     f"{level([r.final_last for r in done])} | {collisions} | {waiting} |")  # fmt: skip
-    lines.append("")
+        lines.append(f"| {variant} | {', '.join(str(r.seed) for r in done)} | {level([r.final_any for r in done])} | "
+                     f"{level([r.final_last for r in done])} | {cell(done)} | {waiting} |")  # fmt: skip
+    return lines + [""]
+
+
+def analyse(task_folder: str, expected_seeds: int) -> str:
+    """The markdown report of N1-N3 for one task folder."""
+    runs, incomplete = load_runs(task_folder)
+    interim = any(len(runs.get(v, [])) < expected_seeds for v in set(runs) | set(incomplete)) or not runs
+    tag = "INTERIM (fewer complete seeds than registered): " if interim else ""
+    lines = variant_table(task_folder, runs, incomplete, "training collisions at the end",
+                          lambda done: level([r.collisions for r in done], 0))  # fmt: skip
     if not runs:
         return "\n".join(lines + ["- No complete runs yet: nothing to decide."])
     if "maddpg" in runs and all(v in runs for v in MACB_VARIANTS):
