@@ -67,7 +67,10 @@ def split_variant(variant: str) -> tuple[list[str], dict[str, Any]]:
     for item in variant.split(","):
         key, is_setting, value = item.partition("=")
         if is_setting:
-            overrides[key] = yaml.safe_load(value)
+            try:
+                overrides[key] = yaml.safe_load(value)
+            except yaml.YAMLError:
+                raise ValueError(f"{item!r}: the value of {key!r} is not valid YAML") from None
         else:
             names.append(item)
     return names, overrides
@@ -209,7 +212,7 @@ def main() -> None:
     try:
         args.variants = expand_grid(args.variants, args.grid)
         check_variants(args)
-    except (ExperimentError, ValueError, yaml.YAMLError) as exc:
+    except (ExperimentError, ValueError) as exc:
         parser.exit(2, f"reproduce.py: error: {str(exc).splitlines()[0]}\n")
     command = "python scripts/reproduce.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     import sb3_macb

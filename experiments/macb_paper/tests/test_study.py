@@ -589,6 +589,7 @@ def test_reproduce_grid_files_one_run_per_point_and_checks_every_setting_first(t
         (["--variants", "macb_joint", "--grid", "exploration.bta=1"], "Unknown MACB option(s) ['bta']"),
         (["--variants", "macb_joint", "--grid", "exploration.k=32,,64"], "give KEY=VALUE[,VALUE...]"),
         (["--variants", "macb_joint,bogus=1"], "Unknown hyperparameter(s)"),
+        (["--variants", "macb_joint,exploration.k=[1"], "the value of 'exploration.k' is not valid YAML"),
     ]:
         done = reproduce_cli(*extra)
         assert done.returncode == 2 and message in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
