@@ -183,6 +183,30 @@ def test_resume_from_the_folder_alone_and_a_finished_experiment(tmp_path):
     assert experiment.run(resume=True) == [str(tmp_path / "run")]  # nothing left to do
 
 
+def test_run_or_resume_starts_new_and_stopped_experiments_and_continues_checkpointed_ones(tmp_path, monkeypatch):
+    from sb3_macb.zoo.experiment import run_or_resume
+
+    calls = []
+    real_run = Experiment.run
+    monkeypatch.setattr(Experiment, "run", lambda self, resume=False: (calls.append(resume), real_run(self, resume))[1])
+    folder = str(tmp_path / "exp")
+    os.makedirs(os.path.join(folder, "checkpoint"))
+    Experiment(small_config(tmp_path), folder)._write_experiment_file(done=False)  # killed before its first checkpoint
+    run_or_resume(Experiment(small_config(tmp_path), folder, checkpoint_freq=50, keep_checkpoint=True, verbose=0))
+    assert calls == [False] and Experiment(small_config(tmp_path), folder).status() == "done"
+    whole = np.load(tmp_path / "run" / "evaluations.npz")
+    os.remove(os.path.join(folder, "experiment.json"))
+    Experiment(small_config(tmp_path), folder)._write_experiment_file(done=False)  # as if stopped after step 150
+    run_or_resume(Experiment(small_config(tmp_path), folder, checkpoint_freq=50, verbose=0))
+    assert calls == [False, True]
+    resumed = np.load(tmp_path / "run" / "evaluations.npz")
+    assert all(np.array_equal(whole[key], resumed[key]) for key in whole.files)
+    run_or_resume(Experiment(small_config(tmp_path), folder, verbose=0))  # finished: returns at once
+    assert calls == [False, True, True]
+    with pytest.raises(ExperimentError, match="n_timesteps: 200 -> 400"):
+        run_or_resume(Experiment(small_config(tmp_path, steps=400), folder, verbose=0))
+
+
 def test_packs_refuse_runs_that_differ_in_more_than_exploration_and_noise(tmp_path):
     a = load_hyperparams(COMM, variants=["fast"])
     b = load_hyperparams(COMM, variants=["maddpg"])  # 400-300 networks

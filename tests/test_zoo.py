@@ -569,11 +569,68 @@ def test_a_trial_failed_by_another_worker_while_it_ran_is_run_again(tmp_path, mo
         calls.append(1)
 
     real_trial, real_pack = sweep_module.run_trial, sweep_module.run_pack
-    monkeypatch.setattr(sweep_module, "run_trial", lambda *a: (real_trial(*a), fail_the_running_trial())[0])
-    monkeypatch.setattr(sweep_module, "run_pack", lambda *a: (real_pack(*a), fail_the_running_trial())[0])
+    monkeypatch.setattr(sweep_module, "run_trial", lambda *a, **k: (real_trial(*a, **k), fail_the_running_trial())[0])
+    monkeypatch.setattr(sweep_module, "run_pack", lambda *a, **k: (real_pack(*a, **k), fail_the_running_trial())[0])
     assert work(str(config), storage_url, "late", str(tmp_path / "logs"), pack=pack, enqueue_wait=0.5) == 0
     assert len(calls) == 2  # the point ran again after its first result was refused
     check_grid_done_once(storage_url, "late", 1)
+
+
+@pytest.mark.parametrize("pack", [0, 2])
+def test_the_retry_of_a_dead_workers_point_resumes_from_its_checkpoint_and_ends_as_if_never_stopped(tmp_path, monkeypatch, pack):
+    from sb3_macb.zoo.experiment import Experiment
+    from sb3_macb.zoo.sweep import work
+
+    config = tmp_path / "grid.yml"  # a buffer of 100 wraps before and after the checkpoints (every 100 steps)
+    config.write_text(
+        f"env: {COMM}\nn_timesteps: 1000\nvariant: fast\neval_freq: 100\neval_episodes: 2\n"
+        "hyperparams: {batch_size: 16, learning_starts: 20, buffer_size: 100, policy_kwargs: 'dict(net_arch=[16])'}\n"
+        f"grid: {{exploration.k: [16]}}\nseeds: {[0, 1] if pack else [0]}\n"
+    )
+    first = "pack_0" if pack else "trial_0"
+    url = f"sqlite:///{tmp_path / 'cut.db'}"
+    cmd = [sys.executable, "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", url, "--study-name", "s",
+           "-f", str(tmp_path / "cut"), "--heartbeat", "1", "--checkpoint-freq", "100", "--pack", str(pack)]  # fmt: skip
+    worker = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    latest = tmp_path / "cut" / "s" / first / "checkpoint" / "LATEST"
+    deadline = time.time() + 240
+    while not latest.exists() and worker.poll() is None and time.time() < deadline:
+        time.sleep(0.01)
+    worker.send_signal(signal.SIGKILL)
+    worker.wait(timeout=60)
+    assert latest.exists() and '"done": false' in (latest.parent.parent / "experiment.json").read_text()  # killed mid-run
+
+    resumed = []
+    real_run = Experiment.run
+    monkeypatch.setattr(Experiment, "run", lambda self, resume=False: (resumed.append((self.folder, resume)), real_run(self, resume))[1])
+    assert work(str(config), url, "s", str(tmp_path / "cut"), heartbeat=1, pack=pack, checkpoint_freq=100, poll=0.5) == 0
+    assert resumed == [(str(tmp_path / "cut" / "s" / first), True)]  # one experiment, continued from its checkpoint
+    assert work(str(config), f"sqlite:///{tmp_path / 'whole.db'}", "s", str(tmp_path / "whole"), pack=pack, checkpoint_freq=100) == 0
+    study = optuna.load_study(study_name="s", storage=url)
+    done = [t for t in study.get_trials() if t.state == TrialState.COMPLETE]
+    assert len(done) == (2 if pack else 1) and all(t.number >= len(done) for t in done)  # the retries of the dead trials
+    for trial in done:
+        name = os.path.basename(trial.user_attrs["run_folder"])
+        assert name in ("trial_0", "trial_1")  # the dead attempt's folder
+        cut, whole = (np.load(tmp_path / r / "s" / name / "evaluations.npz") for r in ("cut", "whole"))
+        assert list(cut["timesteps"]) == list(range(100, 1001, 100))
+        assert all(np.array_equal(cut[key], whole[key]) for key in whole.files)
+
+
+def test_a_folder_name_inherited_from_the_storage_never_reaches_outside_the_sweeps_folder():
+    from types import SimpleNamespace
+
+    from sb3_macb.zoo.sweep import _inherited_name, _run_name
+
+    def trial(**attrs):
+        return SimpleNamespace(user_attrs=attrs, number=7)
+
+    for bad in ("../trial_1", "/tmp/trial_1", "trial_1/../..", "trial_", "pack_1", 3, None):
+        assert _inherited_name(trial(run_name=bad), "run_name", "trial_") is None
+        assert _run_name(trial(run_name=bad), resume=True) == "trial_7"
+    assert _run_name(trial(run_name="trial_3"), resume=True) == "trial_3"
+    assert _run_name(trial(run_name="trial_3"), resume=False) == "trial_7"  # without checkpoints: a new folder
+    assert _run_name(trial(run_name="trial_3", pack_name="pack_2"), resume=True) == "trial_7"  # a pack's run: not alone
 
 
 def test_sweep_pack_a_point_refused_at_setup_fails_alone(tmp_path):

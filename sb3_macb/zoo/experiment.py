@@ -1140,6 +1140,7 @@ def run_experiment(
     checkpoint_freq: int | None = None,
     verbose: int = 0,
     callbacks: list[BaseCallback] | None = None,
+    resume: bool = False,
 ) -> str:
     """
     Train one run, evaluated as the paper does, into ``log_folder`` (``evaluations.npz``, ``model.zip``,
@@ -1149,7 +1150,7 @@ def run_experiment(
     :param hyperparams: The run's hyperparameters (e.g. from :func:`load_hyperparams`).
     :param seed: The run's seed.
     :param n_timesteps: Environment steps.
-    :param log_folder: The run's folder (must not hold an experiment yet).
+    :param log_folder: The run's folder (must not hold an experiment yet, unless ``resume``).
     :param variants: The zoo variants the hyperparameters came from (recorded).
     :param eval_freq: Evaluate every this many steps.
     :param eval_episodes: Episodes per evaluation.
@@ -1157,6 +1158,8 @@ def run_experiment(
     :param checkpoint_freq: Steps between checkpoints (None: none).
     :param verbose: 1 prints a line per checkpoint and at the end.
     :param callbacks: Callbacks run at every step (see :class:`Experiment`).
+    :param resume: Continue the run from its latest checkpoint when ``log_folder`` holds one, with the same
+        settings (see :func:`run_or_resume`).
     :return: ``log_folder``.
     """
     config = ExperimentConfig(
@@ -1167,8 +1170,31 @@ def run_experiment(
         eval_episodes=eval_episodes,
         env_kwargs=dict(env_kwargs or {}),
     )
-    Experiment(config, log_folder, checkpoint_freq=checkpoint_freq, verbose=verbose, callbacks=callbacks).run()
+    experiment = Experiment(config, log_folder, checkpoint_freq=checkpoint_freq, verbose=verbose, callbacks=callbacks)
+    if resume:
+        run_or_resume(experiment)
+    else:
+        experiment.run()
     return log_folder
+
+
+def run_or_resume(experiment: Experiment) -> list[str]:
+    """
+    Run ``experiment``, or continue it from its latest checkpoint when its folder holds one (a finished one returns
+    at once). A folder whose experiment stopped before its first checkpoint is deleted and the experiment started
+    again: nothing in it can be resumed. Settings that differ from those the folder holds are an
+    :class:`ExperimentError`, as with :meth:`Experiment.run`.
+
+    :param experiment: The experiment, built with the settings it was started with.
+    :return: The runs' folders.
+    """
+    status = experiment.status()
+    if status == "started":
+        if experiment.verbose:
+            print(f"{experiment.folder}: stopped before its first checkpoint; starting it again", flush=True)
+        shutil.rmtree(experiment.folder)
+        status = "new"
+    return experiment.run(resume=status != "new")
 
 
 def _read_json(path: str) -> Any:

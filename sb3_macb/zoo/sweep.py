@@ -9,6 +9,8 @@ grid:
   runs once;
 - workers send heartbeats; the trial of a worker that dies is failed by the next worker that looks at the study
   and put back in the queue (Optuna's ``RetryHeartbeatStaleTrialCallback``), where another worker picks it up;
+  with ``--checkpoint-freq N`` it resumes from the dead worker's last checkpoint (a pack resumes whole) where it can
+  reach it (the same machine or a shared file system), and otherwise starts again;
 - every worker checks the study against the grid and queues what is missing (a worker killed while queueing the
   grid, a point whose trial failed); a point that failed ``--max-attempts`` times is given up;
 - a worker leaves when nothing is waiting or running, writes ``results.csv`` (every point with its status: done,
@@ -351,11 +353,21 @@ def repair_queue(study: optuna.Study, points: list[dict[str, Any]], max_attempts
 
 
 def run_trial(
-    config: dict[str, Any], params: dict[str, Any], run_folder: str, callbacks: list[Any] | None = None
+    config: dict[str, Any],
+    params: dict[str, Any],
+    run_folder: str,
+    callbacks: list[Any] | None = None,
+    checkpoint_freq: int | None = None,
 ) -> tuple[float, float, str]:
     """
     Train one grid point (:func:`~sb3_macb.zoo.experiment.run_experiment`); return (success rate, count-1, folder).
-    ``callbacks`` run at every step (a worker's check of its storage).
+
+    :param config: The sweep config.
+    :param params: The point's parameters, with ``seed``.
+    :param run_folder: The run's folder. With ``checkpoint_freq``, a folder that holds this point's checkpoint
+        (a dead worker's) is resumed from it.
+    :param callbacks: Callbacks run at every step (a worker's check of its storage).
+    :param checkpoint_freq: Steps between checkpoints (None: none).
     """
     from sb3_macb.zoo.experiment import make_run, run_experiment
 
@@ -366,6 +378,7 @@ def run_trial(
     run_experiment(
         config["env"], run.hyperparams, run.seed, n_timesteps, run_folder, variants,
         eval_freq=int(config.get("eval_freq", 20)), eval_episodes=int(config.get("eval_episodes", 10)), callbacks=callbacks,
+        checkpoint_freq=checkpoint_freq, resume=checkpoint_freq is not None,
     )  # fmt: skip
     return _trial_result(config, run_folder)
 
@@ -390,27 +403,33 @@ def _check_packable(config: dict[str, Any]) -> None:
         )
 
 
-def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], log_folder: str,
-             callbacks: list[Any] | None = None) -> list[tuple[float, float, str] | Exception]:  # fmt: skip
+def run_pack(config: dict[str, Any], points: list[tuple[str, dict[str, Any]]], log_folder: str,
+             callbacks: list[Any] | None = None, pack_name: str | None = None,
+             checkpoint_freq: int | None = None) -> list[tuple[float, float, str] | Exception]:  # fmt: skip
     """
     Train several grid points as one pack (:mod:`sb3_macb.zoo.experiment`); each is the run it would be alone. A point
     whose settings are refused (checked alone first) fails alone: the others of the pack run without it.
 
-    :param points: (trial number, parameters with ``seed``) of each point.
-    :param log_folder: The sweep's folder; run ``N`` goes to ``trial_N``, the pack's checkpoints to ``pack_N``.
+    :param config: The sweep config.
+    :param points: (run folder name, parameters with ``seed``) of each point.
+    :param log_folder: The sweep's folder, which holds the runs' folders and the pack's.
     :param callbacks: Callbacks run at every step (a worker's check of its storage).
+    :param pack_name: The pack's folder (its ``experiment.json`` and checkpoints) in ``log_folder``; by default
+        ``pack_N`` for the first run ``trial_N``. With ``checkpoint_freq``, a pack folder that holds this pack's
+        checkpoint (a dead worker's) is resumed from it.
+    :param checkpoint_freq: Steps per run between checkpoints (None: none).
     :return: For each point, (success rate, count-1 fraction, run folder), or the error that refused it.
     """
-    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, make_run
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, make_run, run_or_resume
 
     variants = [v for v in str(config.get("variant") or "").split(",") if v]
     eval_freq, eval_episodes = int(config.get("eval_freq", 20)), int(config.get("eval_episodes", 10))
     env_kwargs = dict(config.get("env_kwargs") or {})
     outcomes: list[Any] = []
-    for number, params in points:
+    for name, params in points:
         overrides = {**config.get("hyperparams", {}), **{k: v for k, v in params.items() if k != "seed"}}
         try:
-            folder = os.path.join(log_folder, f"trial_{number}")
+            folder = os.path.join(log_folder, name)
             run, n_timesteps = make_run(config["env"], int(params["seed"]), folder, variants, overrides,
                                         config.get("conf_file"), config.get("n_timesteps") or None)  # fmt: skip
             ExperimentConfig(config["env"], [deepcopy(run)], n_timesteps=n_timesteps, eval_freq=eval_freq,
@@ -423,8 +442,13 @@ def run_pack(config: dict[str, Any], points: list[tuple[int, dict[str, Any]]], l
         n_timesteps = next(o[1] for o in outcomes if not isinstance(o, Exception))
         experiment_config = ExperimentConfig(config["env"], runs, n_timesteps=n_timesteps, eval_freq=eval_freq,
                                              eval_episodes=eval_episodes, env_kwargs=env_kwargs)  # fmt: skip
-        first = next(number for (number, _), o in zip(points, outcomes) if not isinstance(o, Exception))
-        Experiment(experiment_config, os.path.join(log_folder, f"pack_{first}"), verbose=0, callbacks=callbacks).run()
+        pack_name = pack_name or "pack_" + points[0][0].removeprefix("trial_")
+        experiment = Experiment(experiment_config, os.path.join(log_folder, pack_name), checkpoint_freq=checkpoint_freq,
+                                verbose=0, callbacks=callbacks)  # fmt: skip
+        if checkpoint_freq is None:
+            experiment.run()
+        else:
+            run_or_resume(experiment)
     return [o if isinstance(o, Exception) else _trial_result(config, o[0].folder) for o in outcomes]
 
 
@@ -529,6 +553,7 @@ def work(
     enqueue_wait: float = 60.0,
     num_threads: int = 1,
     storage_timeout: float = 30.0,
+    checkpoint_freq: int | None = None,
 ) -> int:
     """
     Join the sweep as a worker and run grid points until none is waiting or running.
@@ -545,6 +570,9 @@ def work(
     :param enqueue_wait: Seconds to wait for the worker that queues the grid before repairing the queue.
     :param num_threads: Torch threads of this worker (one per worker, as many workers as cores, is fastest).
     :param storage_timeout: Seconds a call to a network storage may take (see :func:`make_storage`).
+    :param checkpoint_freq: Steps per run between checkpoints (None: none). A point whose worker died is then
+        resumed from its last checkpoint by the worker that takes up its retry, when that worker reaches the same
+        log folder (the same machine, or a shared file system); otherwise it starts again from step 0.
     :return: 0 when every grid point finished; 1 when some failed ``max_attempts`` times or are missing
         (``results.csv`` lists them with their status and error).
     """
@@ -571,7 +599,8 @@ def work(
         if waiting:
             size = min(pack, waiting) if pack > 0 else 1
             try:  # a failing point is failed (then retried, then reported); the worker goes on
-                _work_on_pack(study, storage, config, size, os.path.join(log_folder, study_name), heartbeat, alone=pack == 0)
+                _work_on_pack(study, storage, config, size, os.path.join(log_folder, study_name), heartbeat, alone=pack == 0,
+                              checkpoint_freq=checkpoint_freq)  # fmt: skip
             except ConnectionError:
                 raise
             except Exception as exc:  # noqa: BLE001
@@ -593,13 +622,20 @@ def _work_on_pack(
     folder: str,
     heartbeat: int,
     alone: bool = False,
+    checkpoint_freq: int | None = None,
 ) -> None:
     """
     Claim up to ``size`` waiting grid points, train them as one pack (``alone``: one point, in its own trial folder,
-    as :func:`run_trial` runs it) and report each.
+    as :func:`run_trial` runs it) and report each. With ``checkpoint_freq``, the points of a dead worker's
+    checkpointed pack are claimed together first and resumed (see :func:`_claim_pack_to_resume`), and a point run
+    alone resumes its dead attempt's run folder.
     """
     claimed: list[tuple[optuna.Trial, dict[str, Any]]] = []
-    for _ in range(size):
+    pack_name = None
+    if checkpoint_freq is not None and not alone:
+        pack_name, trials = _claim_pack_to_resume(study, storage, folder)
+        claimed = [(t, _grid_params(t, config)) for t in trials]
+    for _ in range(size - len(claimed) if not claimed else 0):
         with warnings.catch_warnings():  # (heartbeats are sent by _Heartbeats below, not by study.optimize)
             warnings.simplefilter("ignore", UserWarning)
             trial = study.ask()  # takes a waiting (queued) trial when there is one
@@ -609,20 +645,28 @@ def _work_on_pack(
         if not trial.user_attrs.get("grid_point"):
             study.tell(trial, state=TrialState.PRUNED)  # another worker took the last queued point
             break
-        params = {name: trial.suggest_categorical(name, values) for name, values in config["grid"].items()}
-        params["seed"] = trial.suggest_categorical("seed", [int(s) for s in config["seeds"]])
-        claimed.append((trial, params))
+        claimed.append((trial, _grid_params(trial, config)))
     if not claimed:
         return
+    if pack_name is not None:  # a dead worker's pack, resumed in its own folders
+        names = [str(trial.user_attrs["run_name"]) for trial, _ in claimed]
+    else:
+        names = [_run_name(trial, resume=checkpoint_freq is not None and alone) for trial, _ in claimed]
+    if not alone:
+        pack_name = pack_name or "pack_" + names[0].removeprefix("trial_")
+    for (trial, _), name in zip(claimed, names):  # (inherited by the trial's retry if this worker dies)
+        trial.set_user_attr("run_name", name)
+        trial.set_user_attr("pack_name", pack_name or "")
     try:
         with _Heartbeats(storage, [trial_id(t, storage, study.study_name) for t, _ in claimed], heartbeat) as beats:
             if alone:
-                [(trial, params)] = claimed
+                [(_, params)] = claimed
                 results: list[Any] = [
-                    run_trial(config, params, os.path.join(folder, f"trial_{trial.number}"), [beats.watchdog()])
+                    run_trial(config, params, os.path.join(folder, names[0]), [beats.watchdog()], checkpoint_freq)
                 ]
             else:
-                results = run_pack(config, [(t.number, p) for t, p in claimed], folder, [beats.watchdog()])
+                results = run_pack(config, [(n, p) for n, (_, p) in zip(names, claimed)], folder, [beats.watchdog()],
+                                   pack_name=pack_name, checkpoint_freq=checkpoint_freq)  # fmt: skip
     except ConnectionError:
         raise
     except Exception as exc:
@@ -645,6 +689,76 @@ def _work_on_pack(
             if not _finished_elsewhere(exc):
                 raise
             print(f"sb3-macb sweep: trial {trial.number}: {_LATE}", file=sys.stderr)
+
+
+def _grid_params(trial: optuna.Trial, config: dict[str, Any]) -> dict[str, Any]:
+    """A claimed trial's grid point: its parameters and ``seed``."""
+    params = {name: trial.suggest_categorical(name, values) for name, values in config["grid"].items()}
+    params["seed"] = trial.suggest_categorical("seed", [int(s) for s in config["seeds"]])
+    return params
+
+
+def _inherited_name(trial: Any, key: str, prefix: str) -> str | None:
+    """
+    The folder name ``key`` that a trial inherited from its dead attempt (Optuna's retry copies the user attributes),
+    when it is one this sweep makes (``trial_N`` / ``pack_N``): names from the storage never reach outside the sweep's
+    folder.
+    """
+    name = trial.user_attrs.get(key)
+    if isinstance(name, str) and name.startswith(prefix) and name.removeprefix(prefix).isdigit():
+        return name
+    return None
+
+
+def _run_name(trial: optuna.Trial, resume: bool) -> str:
+    """The run folder of a claimed trial: its dead attempt's when ``resume`` (and it ran alone), else ``trial_N``."""
+    if resume and not trial.user_attrs.get("pack_name"):
+        inherited = _inherited_name(trial, "run_name", "trial_")
+        if inherited is not None:
+            return inherited
+    return f"trial_{trial.number}"
+
+
+def _claim_pack_to_resume(
+    study: optuna.Study, storage: optuna.storages.RDBStorage, folder: str
+) -> tuple[str | None, list[optuna.Trial]]:
+    """
+    Claim together the waiting retries of a dead worker's pack whose checkpoint this worker can reach (its pack folder
+    in ``folder``), when all its runs are waiting: (the pack's folder name, the claimed trials). Another worker may
+    claim one of them first; the ones claimed then run as a new pack (name None). ``(None, [])`` when there is no such
+    pack.
+    """
+    from sb3_macb.zoo.experiment import ExperimentError, read_experiment_file
+
+    groups: dict[str, list[Any]] = {}
+    for frozen in study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+        pack, run = _inherited_name(frozen, "pack_name", "pack_"), _inherited_name(frozen, "run_name", "trial_")
+        if pack is not None and run is not None:
+            groups.setdefault(pack, []).append(frozen)
+    for pack, members in groups.items():
+        try:
+            saved = read_experiment_file(os.path.join(folder, pack, "experiment.json"))
+        except ExperimentError:  # not reachable from here (another machine's disk), or stopped before it was written
+            continue
+        runs = sorted(os.path.basename(str(r.get("folder", ""))) for r in saved["config"]["runs"] if isinstance(r, dict))
+        if sorted(m.user_attrs["run_name"] for m in members) != runs:
+            continue  # not all of its runs are waiting (yet): left to the queue
+        claimed = [trial for trial in (_claim(study, storage, m) for m in members) if trial is not None]
+        if claimed:
+            return (pack if len(claimed) == len(members) else None), claimed
+    return None, []
+
+
+def _claim(study: optuna.Study, storage: optuna.storages.RDBStorage, frozen: Any) -> optuna.Trial | None:
+    """Claim one given waiting trial, as :meth:`optuna.Study.ask` claims the oldest; None when another worker did."""
+    storage_id = trial_id(frozen, storage, study.study_name)
+    try:
+        if not storage.set_trial_state_values(storage_id, state=TrialState.RUNNING):
+            return None
+    except optuna.exceptions.UpdateFinishedTrialError:
+        return None
+    storage.record_heartbeat(storage_id)  # (as for a trial that study.ask claims: see _work_on_pack)
+    return optuna.Trial(study, storage_id)
 
 
 _LATE = (
@@ -675,11 +789,16 @@ def main(argv: list[str] | None = None) -> int:
         default=30.0,
         help="seconds a call to a network storage (PostgreSQL) may take before the worker reports it",
     )
+    parser.add_argument("--checkpoint-freq", type=int, default=None, metavar="N",
+                        help="steps per run between checkpoints; the retry of a point whose worker died resumes from its "
+                        "last one (on a machine that reaches the same log folder)")  # fmt: skip
     parser.add_argument("--pack", type=int, default=0, metavar="K",
                         help="claim up to K queued grid points at once and train them together in one process")  # fmt: skip
     args = parser.parse_args(argv)
     if args.pack < 0:
         parser.error("--pack must be >= 0")
+    if args.checkpoint_freq is not None and args.checkpoint_freq < 1:
+        parser.error("--checkpoint-freq must be >= 1 step")
     if not args.storage_timeout > 0 or args.heartbeat < 1 or args.max_attempts < 1 or args.num_threads < 1:
         parser.error("--storage-timeout must be > 0 and --heartbeat, --max-attempts, --num-threads >= 1")
     os.makedirs(args.log_folder, exist_ok=True)
@@ -697,6 +816,7 @@ def main(argv: list[str] | None = None) -> int:
             max_attempts=args.max_attempts,
             num_threads=args.num_threads,
             storage_timeout=args.storage_timeout,
+            checkpoint_freq=args.checkpoint_freq,
         )
     except (SQLAlchemyError, optuna.exceptions.StorageInternalError) as exc:  # the server went away mid-sweep
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

@@ -106,11 +106,9 @@ def count1_levels(model, seeds: list[int]) -> list[dict]:
 
 def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], command: str) -> tuple[str, bool]:
     """Train (or resume) one pack; (the line to print, whether it failed)."""
-    import shutil
-
     import torch as th
 
-    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run, run_or_resume
 
     th.set_num_threads(1)
     env_id, env_kwargs = CANDIDATES[args.task]
@@ -126,11 +124,7 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
         config = ExperimentConfig(env_id, runs, n_timesteps=steps, eval_freq=EPISODE_STEPS[args.task], eval_episodes=10,
                                   env_kwargs=dict(env_kwargs), command=command)  # fmt: skip
         experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq)
-        status = experiment.status()
-        if status == "started":  # stopped before its first checkpoint: nothing to resume, start it over
-            shutil.rmtree(work)
-            status = "new"
-        experiment.run(resume=status != "new")
+        run_or_resume(experiment)
         if args.pilot and experiment.model is not None:  # (a pack finished earlier wrote its count1.json then)
             for run, levels in zip(runs, count1_levels(experiment.model, [r.seed for r in runs])):
                 with open(os.path.join(run.folder, "count1.json"), "w") as file:

@@ -37,7 +37,6 @@ import hashlib
 import itertools
 import os
 import shlex
-import shutil
 import sys
 from typing import Any
 
@@ -159,7 +158,7 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
     """Train (or resume) one pack; (the line to print, whether it failed)."""
     import torch as th
 
-    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, ExperimentError, make_run, run_or_resume
 
     th.set_num_threads(1)
     env_id, _, env_kwargs = TASKS[args.task]
@@ -171,13 +170,7 @@ def run_pack(args: argparse.Namespace, work: str, jobs: list[tuple[str, int]], c
             names += ["fast"] if args.fast else []
             runs.append(make_run(env_id, seed, folder, names, overrides, n_timesteps=args.n_timesteps)[0])
         config = ExperimentConfig(env_id, runs, n_timesteps=args.n_timesteps, env_kwargs=env_kwargs, command=command)
-        experiment = Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models)
-        status = experiment.status()
-        if status == "started":  # stopped before its first checkpoint: nothing to resume, start it over
-            print(f"{work}: stopped before its first checkpoint; starting it again", flush=True)
-            shutil.rmtree(work)
-            status = "new"
-        experiment.run(resume=status != "new")
+        run_or_resume(Experiment(config, work, checkpoint_freq=args.checkpoint_freq, keep_models=args.keep_models))
     except ExperimentError as exc:
         return f"{work}: ERROR {exc}", True
     return f"{work}: done ({', '.join(f'{v} seed {s}' for v, s in jobs)})", False
