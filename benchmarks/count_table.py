@@ -53,7 +53,10 @@ def memory(codes: int) -> str:
     tracemalloc.reset_peak()
     before = tracemalloc.get_traced_memory()[0]
     arrays = table.arrays()
-    th.save({"slots": th.from_numpy(arrays["keys"].view(np.int64)), "counts": th.from_numpy(arrays["counts"].view(np.int32))}, buffer)
+    th.save(
+        {"slots": th.from_numpy(arrays["keys"].view(np.int64)), "counts": th.from_numpy(arrays["counts"].view(np.int32))},
+        buffer,
+    )
     start = time.perf_counter()
     buffer.seek(0)
     state = th.load(buffer)
@@ -90,8 +93,8 @@ def main() -> None:
         present = mix64(rng.integers(1, next_key, size=(args.calls, args.batch)).astype(np.uint64))
         fresh = iter(mix64(np.arange(next_key, next_key + args.calls, dtype=np.uint64)).reshape(-1, 1))
         it = iter(present)
-        lookup = per_call_us(lambda: table.lookup(next(it)), args.calls)
-        insert = per_call_us(lambda: table.add(next(fresh)), args.calls)
+        lookup = per_call_us(lambda it=it: table.lookup(next(it)), args.calls)
+        insert = per_call_us(lambda fresh=fresh: table.add(next(fresh)), args.calls)
         next_key += args.calls
         print(
             f"| {table.num_codes:.1e} | {table.nbytes / table.num_codes:.1f} | {insert:.1f} | {lookup:.1f} | "

@@ -60,7 +60,10 @@ def main() -> None:
     flushed = [adam_ms(args.share, True, args.repeats) for _ in range(3)]
     plain_ms, flushed_ms = sorted(plain)[1], sorted(flushed)[1]
     print(f"Adam step, 6 x 300 x 400 weights, {args.share:.0%} of the moments denormal (median of 3 x {args.repeats}):")
-    print(f"  without flushing: {plain_ms:.2f} ms;  flush_denormal=True: {flushed_ms:.2f} ms;  ratio {plain_ms / flushed_ms:.1f}x")
+    print(
+        f"  without flushing: {plain_ms:.2f} ms;  flush_denormal=True: {flushed_ms:.2f} ms;  "
+        f"ratio {plain_ms / flushed_ms:.1f}x"
+    )
 
 
 if __name__ == "__main__":

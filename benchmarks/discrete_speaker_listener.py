@@ -49,7 +49,7 @@ def main() -> None:
         learned, random_, times = [], [], []
         for seed in args.seeds:
             model, result, seconds = train_and_evaluate(
-                lambda: make_env(continuous), args.steps, seed, args.eval_episodes, noise=continuous
+                lambda continuous=continuous: make_env(continuous), args.steps, seed, args.eval_episodes, noise=continuous
             )
             learned.append(result)
             times.append(seconds)

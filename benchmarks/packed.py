@@ -25,8 +25,8 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.noise import NormalActionNoise
 
-from benchmarks_common import describe_device
 import sb3_macb
+from benchmarks_common import describe_device
 from sb3_macb import MACB, MADDPG
 from sb3_macb.callbacks import MultiAgentEvalCallback, make_eval_vec_env
 from sb3_macb.common.grouped_mlp import onednn_available

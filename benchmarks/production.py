@@ -1,6 +1,6 @@
 """
-The paper's workload as ``experiments/macb_paper/scripts/reproduce.py`` runs it, timed against its arithmetic floor and against a second
-checkout.
+The paper's workload as ``experiments/macb_paper/scripts/reproduce.py`` runs it, timed against its arithmetic floor and
+against a second checkout.
 
 Workload: sparse Communicative Navigation, MACB(s, x) (beta 0.8, k 512) in every run, batch 100, one gradient step
 per step, Gaussian noise 0.1, evaluation with 10 episodes after every 20-step training episode, 1e6 transitions of
@@ -60,7 +60,8 @@ def worker(args: argparse.Namespace) -> None:
     per_run_buffer = hasattr(MultiAgentReplayBuffer, "buffer_size_per_run")  # 0.8.0 on: buffer_size is per run
     model = MADDPG(
         "MlpPolicy", make_task_vec_env(ENV, pack, {"reward": "sparse"}), n_runs=pack, run_seeds=seeds,
-        exploration=[MACB(beta=0.8, k=512) for _ in seeds], action_noise=[NormalActionNoise(np.zeros(5), 0.1 * np.ones(5)) for _ in seeds],
+        exploration=[MACB(beta=0.8, k=512) for _ in seeds],
+        action_noise=[NormalActionNoise(np.zeros(5), 0.1 * np.ones(5)) for _ in seeds],
         learning_rate=1e-3, batch_size=100, learning_starts=100 * pack, policy_kwargs=dict(net_arch=net, **precision),
         buffer_size=args.buffer if per_run_buffer else args.buffer * pack, device="cpu",
     )  # fmt: skip
@@ -149,9 +150,9 @@ def gemm_floor_ms(net: list[int], repeats: int = 50) -> float:
     total = 0.0
     for m, k, n in shapes:
         a, w = th.randn(m, k), th.randn(n, k)
-        calls = {"mkl": lambda: th.mm(a, w.t())}
+        calls = {"mkl": lambda a=a, w=w: th.mm(a, w.t())}
         if linear is not None:
-            calls["onednn"] = lambda: linear(a, w, None, "none", [], "")
+            calls["onednn"] = lambda a=a, w=w: linear(a, w, None, "none", [], "")
         best = float("inf")
         for call in calls.values():
             for _ in range(5):
@@ -216,7 +217,8 @@ def main() -> None:
 
     floors = {config: gemm_floor_ms(net) for config, (net, _) in CONFIGS.items()}
     rates = gemm_rates()
-    print(f"sb3_macb {sb3_macb.__version__} (this checkout, {args.precision}), torch {th.__version__}, {platform.processor() or platform.machine()}, "
+    cpu = platform.processor() or platform.machine()
+    print(f"sb3_macb {sb3_macb.__version__} (this checkout, {args.precision}), torch {th.__version__}, {cpu}, "
           f"one thread per process, {len(checkouts)} process(es) at once")  # fmt: skip
     print("GEMM 100x400 @ 400x300, GFLOP/s: " + ", ".join(f"{k} {v:.0f}" for k, v in rates.items() if v))
     print(f"GEMM floor of one update of one run: 400-300 {floors['400']:.2f} ms, 64-64 {floors['64']:.3f} ms")
@@ -228,8 +230,8 @@ def main() -> None:
                 rates_now = measure(order, config, window, args)
                 for checkout, rate in zip(order, rates_now):
                     results.setdefault((config, window, checkouts.index(checkout)), []).append(rate)
-                print(f"round {round_ + 1}: {config} {window}: " + ", ".join(
-                    f"{'ours' if checkouts.index(c) == 0 else 'baseline'} {r:.0f}" for c, r in zip(order, rates_now)), flush=True)  # fmt: skip
+                named = [f"{'ours' if checkouts.index(c) == 0 else 'baseline'} {r:.0f}" for c, r in zip(order, rates_now)]
+                print(f"round {round_ + 1}: {config} {window}: " + ", ".join(named), flush=True)
     print("\n| networks | window | checkout | run-steps/s per core | ms per run-step | / GEMM floor |")
     print("|---|---|---|---|---|---|")
     summary: dict[str, float] = {}
@@ -238,13 +240,18 @@ def main() -> None:
             for index, name in enumerate(["ours", "baseline"][: len(checkouts)]):
                 rate = statistics.median(results[(config, window, index)])
                 ratio = 1e3 / rate / floors[config]
-                print(f"| {'400-300' if config == '400' else '64-64'} | {window} | {name} | {rate:.0f} | {1e3 / rate:.2f} | {ratio:.2f} |")
+                print(
+                    f"| {'400-300' if config == '400' else '64-64'} | {window} | {name} | {rate:.0f} | "
+                    f"{1e3 / rate:.2f} | {ratio:.2f} |"
+                )
                 if window == "late":
                     summary[f"rs{config}" if index == 0 else f"base{config}"] = rate
                     if index == 0:
                         summary[f"floor{config}"] = ratio
     vs = {c: summary[f"rs{c}"] / summary[f"base{c}"] if f"base{c}" in summary else float("nan") for c in args.configs}
-    figures = [f"rs{c}={summary[f'rs{c}']:.0f}" for c in args.configs] + [f"floor{c}={summary[f'floor{c}']:.2f}" for c in args.configs]
+    figures = [f"rs{c}={summary[f'rs{c}']:.0f}" for c in args.configs] + [
+        f"floor{c}={summary[f'floor{c}']:.2f}" for c in args.configs
+    ]
     figures += [f"vs_baseline{c}={vs[c]:.2f}" for c in args.configs]
     print(f"\nproduction: {' '.join(figures)}" + ("" if args.precision == "fp32" else f" precision={args.precision}"))
 

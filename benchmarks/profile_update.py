@@ -37,7 +37,8 @@ def main() -> None:
     env = speaker_listener()
     dim = env.action_space.shape[0]
     model = MADDPG("MlpPolicy", env, action_noise=NormalActionNoise(np.zeros(dim), 0.1 * np.ones(dim)), batch_size=100,
-                   learning_starts=100, seed=0, device="cpu", policy_kwargs=dict(net_arch=args.net, precision=args.precision))  # fmt: skip
+                   learning_starts=100, seed=0, device="cpu",
+                   policy_kwargs=dict(net_arch=args.net, precision=args.precision))  # fmt: skip
     model.learn(300)
     model.train(20, 100)  # warm-up
     start = time.perf_counter()
@@ -48,7 +49,10 @@ def main() -> None:
     events = prof.key_averages()
     copies = sum(e.count for e in events if e.key == "aten::copy_") / args.updates
     total = sum(e.self_cpu_time_total for e in events)
-    print(f"net={args.net} threads={args.threads} onednn={GroupedMLP.use_onednn} precision={args.precision} torch={th.__version__}")
+    print(
+        f"net={args.net} threads={args.threads} onednn={GroupedMLP.use_onednn} precision={args.precision} "
+        f"torch={th.__version__}"
+    )
     print(f"backend: {describe_backend()}")
     print(f"{per_update:.2f} ms per update (unprofiled); aten::copy_ calls per update: {copies:.0f}")
     print("| operator | self CPU % | calls per update | us per call |")

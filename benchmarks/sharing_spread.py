@@ -40,7 +40,9 @@ def main() -> None:
             returns, times = [], []
             for seed in args.seeds:
                 kwargs = dict(share_parameters="all", share_critics=True) if share else {}
-                model, result, seconds = train_and_evaluate(lambda: make_env(n), args.steps, seed, args.eval_episodes, **kwargs)
+                model, result, seconds = train_and_evaluate(
+                    lambda n=n: make_env(n), args.steps, seed, args.eval_episodes, **kwargs
+                )
                 returns.append(result)
                 times.append(seconds)
             size = sum(p.numel() for p in [*model.actor.parameters(), *model.critic.parameters()])

@@ -104,7 +104,9 @@ def main() -> None:
         }
         for n in (3, 6):
             for share in (False, True):
-                name = f"MADDPG, simple_spread N={n}, 64-64, {'shared actors and critics' if share else 'one network per agent'}"
+                name = (
+                    f"MADDPG, simple_spread N={n}, 64-64, {'shared actors and critics' if share else 'one network per agent'}"
+                )
                 kwargs = dict(share_parameters="all", share_critics=True) if share else {}
                 configs[name] = lambda n=n, kwargs=kwargs: new_model(f"spread-{n}", small, **kwargs)
     results: dict[str, list[float]] = {name: [] for name in configs}
@@ -121,7 +123,11 @@ def main() -> None:
     for name, values in results.items():
         print(f"| {name} | {med[name]:.0f} | {min(values):.0f} | {max(values):.0f} |")
     ratios = [
-        ("MADDPG 2 agents / SB3 DDPG, 400-300", "MADDPG, speaker-listener (2 agents), 400-300", "SB3 DDPG, Pendulum-v1, 400-300"),
+        (
+            "MADDPG 2 agents / SB3 DDPG, 400-300",
+            "MADDPG, speaker-listener (2 agents), 400-300",
+            "SB3 DDPG, Pendulum-v1, 400-300",
+        ),
         ("MADDPG 2 agents / SB3 DDPG, 64-64", "MADDPG, speaker-listener, 64-64", "SB3 DDPG, Pendulum-v1, 64-64"),
         (
             "MADDPG+MACB / MADDPG, 400-300",
@@ -129,8 +135,11 @@ def main() -> None:
             "MADDPG, speaker-listener (2 agents), 400-300",
         ),
         ("MADDPG bf16 / SB3 DDPG, 400-300", "MADDPG bf16, speaker-listener, 400-300", "SB3 DDPG, Pendulum-v1, 400-300"),
-        ("MADDPG bf16 / MADDPG fp32, 400-300", "MADDPG bf16, speaker-listener, 400-300",
-         "MADDPG, speaker-listener (2 agents), 400-300"),
+        (
+            "MADDPG bf16 / MADDPG fp32, 400-300",
+            "MADDPG bf16, speaker-listener, 400-300",
+            "MADDPG, speaker-listener (2 agents), 400-300",
+        ),
         ("MADDPG bf16 / MADDPG fp32, 64-64", "MADDPG bf16, speaker-listener, 64-64", "MADDPG, speaker-listener, 64-64"),
     ]
     for label, num, den in ratios:

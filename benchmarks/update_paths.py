@@ -53,7 +53,8 @@ def main() -> None:
                 times[onednn] = per_update_ms(model, updates)
             ratios.append(times[True] / times[False])
             print(f"{'-'.join(map(str, args.net))} pack of {n_runs}, round {rnd}: oneDNN per group {times[True]:.2f} ms, "
-                  f"batched {times[False]:.2f} ms per update ({times[True] / n_runs:.2f} / {times[False] / n_runs:.2f} per run)")  # fmt: skip
+                  f"batched {times[False]:.2f} ms per update "
+                  f"({times[True] / n_runs:.2f} / {times[False] / n_runs:.2f} per run)")  # fmt: skip
         GroupedMLP.use_onednn = True
         print(f"update_paths: net={'-'.join(map(str, args.net))} pack={n_runs} onednn_over_batched={np.median(ratios):.2f}")
 

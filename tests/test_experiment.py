@@ -31,12 +31,12 @@ COMM = "sb3_macb/CommunicativeNavigation-v0"
 NAV = "sb3_macb/TwoAgentNavigation-v0"
 
 # A script that runs a small two-run pack with checkpoints; argv: root tag steps [resume]
-PACK_SCRIPT = """
+PACK_SCRIPT = f"""
 import sys, torch as th
 th.set_num_threads(1)
 from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
 root, tag, steps = sys.argv[1], sys.argv[2], int(sys.argv[3])
-hp = [load_hyperparams("{env}", variants=v) for v in (["fast"], ["maddpg", "fast"])]
+hp = [load_hyperparams("{COMM}", variants=v) for v in (["fast"], ["maddpg", "fast"])]
 for h in hp:  # (a buffer of 300: it wraps before and after the checkpoint a kill resumes from)
     h.update(policy_kwargs="dict(net_arch=[32, 32])", batch_size=16, buffer_size=300)
 hp[0]["exploration"] = dict(beta="lin_0.8", k=16, normalize="zscore", table="sketch", sketch_width=101)  # all state
@@ -44,9 +44,9 @@ hp[1]["exploration"] = dict(estimator="rnd", beta=0.3)  # networks, Adam state a
 for h in hp:
     h["intrinsic_critic"] = True  # (and both runs learn their bonus with intrinsic critics)
 runs = [RunConfig(seed=s, folder=f"{{root}}/{{tag}}/run_{{s}}", hyperparams=h) for s, h in zip((0, 1), hp)]
-config = ExperimentConfig("{env}", runs, n_timesteps=steps)
+config = ExperimentConfig("{COMM}", runs, n_timesteps=steps)
 Experiment(config, f"{{root}}/{{tag}}", checkpoint_freq=100, verbose=0, monitor=True).run(resume=len(sys.argv) > 4)
-""".format(env=COMM)
+"""
 
 
 def run_pack(tmp_path, tag, steps, resume=False, kill_at_checkpoint=None):
@@ -147,7 +147,9 @@ def test_a_mixed_pack_through_the_runner_equals_its_solo_runs_past_the_buffer(tm
         return hp
 
     plan = [(0, ["maddpg", "fast"]), (1, ["fast"]), (2, ["macb_constant", "fast"])]  # seeds and variants mixed
-    runs = [RunConfig(seed, str(tmp_path / "pack" / f"run_{seed}"), variants, hyperparams(variants)) for seed, variants in plan]
+    runs = [
+        RunConfig(seed, str(tmp_path / "pack" / f"run_{seed}"), variants, hyperparams(variants)) for seed, variants in plan
+    ]
     Experiment(ExperimentConfig(COMM, runs, n_timesteps=300), str(tmp_path / "pack"), checkpoint_freq=150, verbose=0).run()
     for seed, variants in plan:
         alone = RunConfig(seed, str(tmp_path / f"alone_{seed}"), variants, hyperparams(variants))
@@ -254,16 +256,16 @@ def test_the_timeout_terminal_variant_stores_the_20_step_cut_as_terminal_and_nev
     assert np.array_equal(np.flatnonzero(buffer.dones[:2000, 0]), np.arange(19, 2000, 20))  # every 20th step, only
 
 
-SAVE_LOOP = """
+SAVE_LOOP = f"""
 import sys
 from sb3_macb import MADDPG
 from sb3_macb.envs.vec_tasks import make_task_vec_env
-model = MADDPG("MlpPolicy", make_task_vec_env("{env}", 1), policy_kwargs=dict(net_arch=[256, 256]), seed=0)
+model = MADDPG("MlpPolicy", make_task_vec_env("{COMM}", 1), policy_kwargs=dict(net_arch=[256, 256]), seed=0)
 print("ready", flush=True)
 while True:
     model.save(sys.argv[1])
     model.save_replay_buffer(sys.argv[2])
-""".format(env=COMM)
+"""
 
 
 @pytest.mark.slow
@@ -290,7 +292,10 @@ def test_a_save_killed_at_any_moment_leaves_the_previous_file(tmp_path):
 def test_hyperparameter_strings_are_parsed_without_running_code(tmp_path):
     import torch.nn as nn
 
-    assert safe_eval("dict(net_arch=[400, 300], activation_fn=nn.Tanh)", "x") == {"net_arch": [400, 300], "activation_fn": nn.Tanh}
+    assert safe_eval("dict(net_arch=[400, 300], activation_fn=nn.Tanh)", "x") == {
+        "net_arch": [400, 300],
+        "activation_fn": nn.Tanh,
+    }
     assert safe_eval("{'a': (1, -2.5), 'b': None}", "x") == {"a": (1, -2.5), "b": None}
     marker = tmp_path / "pwned"
     for text in (f"__import__('os').system('touch {marker}')", f"dict(a=open('{marker}', 'w'))", "().__class__"):
@@ -304,8 +309,9 @@ def test_hyperparameter_strings_are_parsed_without_running_code(tmp_path):
 def test_train_command_checkpoints_and_resumes(tmp_path, capsys):
     from sb3_macb.cli import main
 
-    common = ["--env", COMM, "-n", "300", "--seed", "2", "-f", str(tmp_path), "-c", load_hyperparams.__globals__["DEFAULT_CONFIG"],
-              "--variant", "maddpg,fast", "-params", "batch_size:16", "policy_kwargs:dict(net_arch=[16])"]  # fmt: skip
+    common = ["--env", COMM, "-n", "300", "--seed", "2", "-f", str(tmp_path),
+              "-c", load_hyperparams.__globals__["DEFAULT_CONFIG"], "--variant", "maddpg,fast",
+              "-params", "batch_size:16", "policy_kwargs:dict(net_arch=[16])"]  # fmt: skip
     assert main(["train", *common, "--checkpoint-freq", "100", "--verbose", "0"]) == 0
     folder = tmp_path / "maddpg" / "sb3_macb-CommunicativeNavigation-v0_1"
     assert json.loads((folder / "run.json").read_text())["complete"]

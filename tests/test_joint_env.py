@@ -4,9 +4,9 @@ from gymnasium import spaces
 from mpe2 import simple_speaker_listener_v4, simple_spread_v3
 from pettingzoo.utils.conversions import parallel_to_aec
 from stable_baselines3.common.env_checker import check_env
-from toy_envs import Rendezvous
 
 from sb3_macb import AgentLayout, make_joint_env
+from toy_envs import Rendezvous
 
 
 def test_layout_spaces_and_bounds():

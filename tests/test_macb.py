@@ -6,10 +6,10 @@ import pytest
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.noise import NormalActionNoise
-from toy_envs import Rendezvous
 
 from sb3_macb import MACB, MADDPG, MACBReplayBuffer, MultiAgentReplayBuffer, make_joint_env
 from sb3_macb.exploration import CountTable, SimHash
+from toy_envs import Rendezvous
 
 SMALL = dict(net_arch=[32, 32])
 
@@ -295,7 +295,9 @@ def test_a_normalized_constant_bonus_trains_exactly_as_plain_maddpg(normalize):
     # the same constant without normalisation is a reward offset: its critics part from plain MADDPG's
     shifted = make_model(MACB(beta=0.8, counts=False))
     shifted.learn(310)
-    assert not all(th.allclose(a, b, atol=1e-3) for a, b in zip(plain.policy.state_dict().values(), shifted.policy.state_dict().values()))
+    assert not all(
+        th.allclose(a, b, atol=1e-3) for a, b in zip(plain.policy.state_dict().values(), shifted.policy.state_dict().values())
+    )
 
 
 def test_normalizer_moving_averages_center_and_scale():
@@ -397,7 +399,9 @@ def test_count_min_sketch_never_undercounts_and_is_exact_when_wide():
 
 def test_macb_with_a_sketch_gives_at_most_the_exact_bonus_and_saves(tmp_path):
     exact = make_model(MACB(beta=0.8, k=16, decimals=None), learning_starts=10_000)
-    sketch = make_model(MACB(beta=0.8, k=16, decimals=None, table="sketch", sketch_depth=2, sketch_width=7), learning_starts=10_000)
+    sketch = make_model(
+        MACB(beta=0.8, k=16, decimals=None, table="sketch", sketch_depth=2, sketch_width=7), learning_starts=10_000
+    )
     rng = np.random.default_rng(1)
     for _ in range(200):
         t = (rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3), [0.0, 0.0])

@@ -7,11 +7,11 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
-from toy_envs import Rendezvous
 
 from sb3_macb import MADDPG, MultiAgentReplayBuffer, make_joint_env
 from sb3_macb.common import grouped_mlp
 from sb3_macb.common.grouped_mlp import GroupedMLP, onednn_available
+from toy_envs import Rendezvous
 
 SMALL = dict(net_arch=[32, 32])
 

@@ -4,11 +4,11 @@ import os
 import shutil
 import subprocess
 import sys
-import tomllib
 import zipfile
+from pathlib import Path
 
 import pytest
-from pathlib import Path
+import tomllib
 
 ROOT = Path(__file__).parent.parent
 
@@ -36,7 +36,9 @@ def test_a_wheel_ships_the_zoo_yaml_and_the_cli_finds_its_defaults(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"sb3_macb/zoo/hyperparams/maddpg.yml", "sb3_macb/zoo/sweeps/table1.yml"} <= names
     site = tmp_path / "site"
-    subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [*pip, "install", "--no-deps", "--target", str(site), str(wheel)], check=True, capture_output=True, timeout=300
+    )
     check = (
         "import os, sb3_macb\n"
         "from sb3_macb.zoo.experiment import DEFAULT_CONFIG, load_hyperparams\n"

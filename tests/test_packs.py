@@ -34,14 +34,22 @@ def train(seeds, explorations, steps, net_arch=(32, 32), sigmas=None, precision=
         learning_starts=40 * n,
         policy_kwargs=dict(net_arch=list(net_arch), precision=precision, **policy),
     )
-    callback = MultiAgentEvalCallback(make_eval_vec_env(COMM, 4, seeds), n_eval_episodes=4, eval_freq=20, verbose=0, warn=False)
+    callback = MultiAgentEvalCallback(
+        make_eval_vec_env(COMM, 4, seeds), n_eval_episodes=4, eval_freq=20, verbose=0, warn=False
+    )
     model.learn(steps * n, callback=callback)
     return model, callback
 
 
 def settings():
-    # the paper's form, none, per-agent counts in narrow sketches normalised, and a constant bonus whose beta falls over training
-    return [MACB(0.8, 64), None, MACB(0.8, 512, scope="local", normalize="zscore", table="sketch", sketch_width=101), MACB(linear_schedule(0.8), counts=False)]
+    # the paper's form, none, per-agent counts in narrow sketches normalised, and a constant bonus whose beta falls over
+    # training
+    return [
+        MACB(0.8, 64),
+        None,
+        MACB(0.8, 512, scope="local", normalize="zscore", table="sketch", sketch_width=101),
+        MACB(linear_schedule(0.8), counts=False),
+    ]
 
 
 @pytest.mark.parametrize("net_arch", [(32, 32), (128, 96)], ids=["batched-small-layers", "per-group-large-layers"])
@@ -158,7 +166,7 @@ def test_bad_pack_settings_are_named():
     model = MADDPG("MlpPolicy", env, n_runs=2, seed=0, policy_kwargs=dict(net_arch=[8]))
     assert model.run_seeds == [0, 1]
     with pytest.raises(AttributeError, match="explorations"):
-        model.exploration
+        _ = model.exploration
     with pytest.raises(IndexError):
         model.get_run(2)
 
@@ -239,14 +247,15 @@ def test_block_adam_is_bit_identical_to_one_fused_adam_per_block():
 
 def test_a_pack_with_discrete_agents_is_bit_identical_to_its_solo_runs():
     from stable_baselines3.common.env_util import make_vec_env
-    from toy_envs import Rendezvous
 
     from sb3_macb import make_joint_env
+    from toy_envs import Rendezvous
 
     def run(seeds):
         env = make_vec_env(lambda: make_joint_env(Rendezvous(discrete=True)), n_envs=len(seeds))
         model = MADDPG("MlpPolicy", env, n_runs=len(seeds), run_seeds=seeds, batch_size=8, learning_starts=20 * len(seeds),
-                       buffer_size=50, policy_kwargs=dict(net_arch=[16]), exploration=[MACB(0.5, 16) for _ in seeds])  # fmt: skip
+                       buffer_size=50, policy_kwargs=dict(net_arch=[16]),
+                       exploration=[MACB(0.5, 16) for _ in seeds])  # fmt: skip
         model.learn(120 * len(seeds))
         assert model.replay_buffer.full
         return model
@@ -296,7 +305,9 @@ def test_a_pack_with_shared_networks_is_bit_identical_to_its_solo_runs(share_cri
     pack = run([5, 6])
     for k, seed in enumerate([5, 6]):
         solo, member = run([seed]), pack.get_run(k)
-        for a, b in zip([*solo.actor.parameters(), *solo.critic.parameters()], [*member.actor.parameters(), *member.critic.parameters()]):
+        for a, b in zip(
+            [*solo.actor.parameters(), *solo.critic.parameters()], [*member.actor.parameters(), *member.critic.parameters()]
+        ):
             assert th.equal(a, b)
 
 
@@ -345,7 +356,9 @@ def test_an_intrinsic_critic_pack_with_matd3_settings_is_bit_identical_to_its_so
     settings = [MACB(0.8, 64, normalize="center"), None, MACB(0.8, counts=False)]
     pack = make([3, 4, 5], settings)
     pack.learn(3 * 150)  # the buffer of 50 wraps twice
-    for k, (seed, exploration) in enumerate(zip([3, 4, 5], [MACB(0.8, 64, normalize="center"), None, MACB(0.8, counts=False)])):
+    for k, (seed, exploration) in enumerate(
+        zip([3, 4, 5], [MACB(0.8, 64, normalize="center"), None, MACB(0.8, counts=False)])
+    ):
         solo = make([seed], [exploration]) if exploration is not None else None
         if solo is None:  # a run without exploration learns a zero bonus; alone it needs one to have the critic
             continue

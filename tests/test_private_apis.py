@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 import torch as th
-from toy_envs import Rendezvous
 from torch import nn
 
 from sb3_macb import MADDPG
 from sb3_macb.common import private_apis
 from sb3_macb.common.block_adam import BlockAdam
+from toy_envs import Rendezvous
 
 
 def both(fn):  # type: ignore[no-untyped-def]
@@ -69,7 +69,9 @@ def test_parameter_values_fast_path_equals_its_fallback():
 @pytest.mark.parametrize("net_arch", [[32, 32], [128, 96]])
 def test_training_with_the_fallbacks_is_bit_identical(net_arch):
     def run() -> list[th.Tensor]:
-        model = MADDPG("MlpPolicy", Rendezvous(), seed=2, learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=net_arch))
+        model = MADDPG(
+            "MlpPolicy", Rendezvous(), seed=2, learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=net_arch)
+        )
         model.learn(300)
         return [t.clone() for t in model.policy.state_dict().values()]
 

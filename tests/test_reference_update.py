@@ -9,15 +9,14 @@ difference into a visible one, at an update that depends on the seed.)
 
 from typing import Any
 
-import numpy as np
 import pytest
 import torch as th
-from toy_envs import Rendezvous
 from torch import nn
 
 from sb3_macb import MACB, MADDPG, MATD3
 from sb3_macb.common.grouped_mlp import GroupedMLP, onednn_available
 from sb3_macb.maddpg.maddpg import DISCRETE_LOGIT_PENALTY
+from toy_envs import Rendezvous
 
 
 def _mlp(weights: list[th.Tensor], biases: list[th.Tensor]) -> nn.Sequential:
@@ -89,7 +88,9 @@ class ReferenceMADDPG:
         self.critic_targets = [[cs[i] for i in agents] for cs in critic_targets]
         lr = model.lr_schedule(1)
         self.actor_opt = th.optim.Adam([p for a in actors.values() for p in a.parameters()], lr=lr, foreach=False)
-        self.critic_opt = th.optim.Adam([p for cs in critics for c in cs.values() for p in c.parameters()], lr=lr, foreach=False)
+        self.critic_opt = th.optim.Adam(
+            [p for cs in critics for c in cs.values() for p in c.parameters()], lr=lr, foreach=False
+        )
 
     def _with_id(self, x: th.Tensor, i: int) -> th.Tensor:
         """``x`` followed by agent ``i``'s one-hot id (shared parameters), else ``x``."""
@@ -127,7 +128,9 @@ class ReferenceMADDPG:
                         next_actions[:, sl] = smoothed.clamp(-1, 1)
             targets = []
             for i in range(self.n_agents):
-                next_q = th.stack([cs[i](self._with_id(th.cat([next_obs, next_actions], 1), i))[:, 0] for cs in self.critic_targets])
+                next_q = th.stack(
+                    [cs[i](self._with_id(th.cat([next_obs, next_actions], 1), i))[:, 0] for cs in self.critic_targets]
+                )
                 targets.append(rewards[:, i] + self.gamma * (1 - dones) * next_q.min(dim=0).values)
         critic_loss = sum(
             ((cs[i](self._with_id(th.cat([obs, actions], 1), i))[:, 0] - targets[i]) ** 2).mean()
@@ -209,8 +212,14 @@ def _record_updates(model: MADDPG, updates: int, batch_size: int) -> list[dict]:
 def test_train_matches_an_independent_plain_pytorch_maddpg(net_arch, onednn, td3):
     if onednn and net_arch == [128, 96] and not onednn_available():
         pytest.skip("no oneDNN in this PyTorch build")
-    extra = dict(policy_kwargs=dict(net_arch=net_arch, n_critics=2), policy_delay=2) if td3 else dict(policy_kwargs=dict(net_arch=net_arch))
-    model = MADDPG("MlpPolicy", Rendezvous(), batch_size=32, learning_starts=200, seed=3, device="cpu", gamma=0.95, tau=0.01, **extra)
+    extra = (
+        dict(policy_kwargs=dict(net_arch=net_arch, n_critics=2), policy_delay=2)
+        if td3
+        else dict(policy_kwargs=dict(net_arch=net_arch))
+    )
+    model = MADDPG(
+        "MlpPolicy", Rendezvous(), batch_size=32, learning_starts=200, seed=3, device="cpu", gamma=0.95, tau=0.01, **extra
+    )
     GroupedMLP.use_onednn = onednn
     try:
         model.learn(200)  # random warm-up transitions only (learning starts at 200)

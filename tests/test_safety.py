@@ -89,7 +89,9 @@ def small_hyperparams(**extra):
 
 def single_run(folder, steps=150, **extra) -> ExperimentConfig:
     """The train command's layout: the run's files and its checkpoints in one folder."""
-    return ExperimentConfig(COMM, [RunConfig(seed=0, folder=str(folder), hyperparams=small_hyperparams(**extra))], n_timesteps=steps)
+    return ExperimentConfig(
+        COMM, [RunConfig(seed=0, folder=str(folder), hyperparams=small_hyperparams(**extra))], n_timesteps=steps
+    )
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +141,10 @@ def test_a_moved_pack_whose_runs_lie_outside_its_folder_is_refused(tmp_path):
     work = tmp_path / "work"
     Experiment(ExperimentConfig(COMM, runs, n_timesteps=60), str(work), verbose=0)._write_experiment_file(done=False)
     saved = json.loads((work / "experiment.json").read_text())
-    assert [r["folder"] for r in saved["config"]["runs"]] == [os.path.join("..", "out", "run_0"), os.path.join("..", "out", "run_1")]
+    assert [r["folder"] for r in saved["config"]["runs"]] == [
+        os.path.join("..", "out", "run_0"),
+        os.path.join("..", "out", "run_1"),
+    ]
     assert len(load_experiment(str(work), verbose=0).config.runs) == 2  # in place: its runs are where they were
     shutil.copytree(work, tmp_path / "copy")
     with pytest.raises(ExperimentError, match="moved or copied .* lies outside it"):
@@ -293,7 +298,9 @@ def test_files_that_are_not_what_they_claim(tmp_path, capsys, monkeypatch):
                    "missing.yml")  # fmt: skip
     sweep = tmp_path / "sweep.yml"
     for conf_file, expected in (("/etc/passwd", ".yml/.yaml"), (str(listing), "not a YAML mapping")):
-        sweep.write_text(yaml.safe_dump({"env": COMM, "grid": {"exploration.beta": [0.1]}, "seeds": [0], "conf_file": conf_file}))
+        sweep.write_text(
+            yaml.safe_dump({"env": COMM, "grid": {"exploration.beta": [0.1]}, "seeds": [0], "conf_file": conf_file})
+        )
         line = one_line_error(capsys, ["sweep", "--config", str(sweep), "--study-name", "s", "-f", str(tmp_path)], expected)
         assert "root:" not in line
     assert cli(["plot", "curves", str(tmp_path / "nothing")]) == 2

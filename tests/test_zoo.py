@@ -13,8 +13,8 @@ import yaml
 from optuna.trial import TrialState
 
 from sb3_macb import MADDPG
-from sb3_macb.zoo.plots import main as plot
 from sb3_macb.zoo import sweep as sweep_module
+from sb3_macb.zoo.plots import main as plot
 from sb3_macb.zoo.sweep import load_config, make_storage
 from sb3_macb.zoo.train import DEFAULT_CONFIG, train
 
@@ -182,7 +182,9 @@ def test_sweep_waits_for_a_locked_sqlite_database(tmp_path):
 def test_sweep_postgresql(tmp_path):
     url = os.environ.get("SB3_MACB_TEST_POSTGRES_URL")
     if not url:
-        pytest.skip("SB3_MACB_TEST_POSTGRES_URL is not set: no PostgreSQL server (.ci/run starts one with .ci/start-postgres.sh)")
+        pytest.skip(
+            "SB3_MACB_TEST_POSTGRES_URL is not set: no PostgreSQL server (.ci/run starts one with .ci/start-postgres.sh)"
+        )
     try:
         import sqlalchemy
 
@@ -239,14 +241,18 @@ def test_a_postgresql_server_that_stops_answering_mid_sweep_is_reported_at_once(
 
     url = os.environ.get("SB3_MACB_TEST_POSTGRES_URL")
     if not url:
-        pytest.skip("SB3_MACB_TEST_POSTGRES_URL is not set: no PostgreSQL server (.ci/run starts one with .ci/start-postgres.sh)")
+        pytest.skip(
+            "SB3_MACB_TEST_POSTGRES_URL is not set: no PostgreSQL server (.ci/run starts one with .ci/start-postgres.sh)"
+        )
     parts = urlsplit(url)
     proxy = FreezingProxy(parts.hostname, parts.port or 5432)
-    proxied = url.replace(parts.netloc, f"{parts.username}@127.0.0.1:{proxy.port}" if parts.username else f"127.0.0.1:{proxy.port}")
+    proxied = url.replace(
+        parts.netloc, f"{parts.username}@127.0.0.1:{proxy.port}" if parts.username else f"127.0.0.1:{proxy.port}"
+    )
     name = f"frozen_{os.getpid()}_{int(time.time())}"
     config = sweep_config(tmp_path, n_timesteps=100_000, betas=(0.5,), ks=(16,))
-    cmd = [sys.executable, "-X", "faulthandler", "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", proxied, "--study-name", name,
-           "-f", str(tmp_path / "logs"), "--heartbeat", "1", "--storage-timeout", "5"]  # fmt: skip
+    cmd = [sys.executable, "-X", "faulthandler", "-m", "sb3_macb", "sweep", "--config", str(config), "--storage", proxied,
+           "--study-name", name, "-f", str(tmp_path / "logs"), "--heartbeat", "1", "--storage-timeout", "5"]  # fmt: skip
     worker = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while time.time() < deadline:  # until its trial runs (read through the real server)
@@ -359,8 +365,11 @@ def test_sweep_pack_trains_queued_points_together_as_they_would_run_alone(tmp_pa
     params = dict(zip(["exploration.beta", "exploration.k", "seed"], row[1:4]))
     hp = load_hyperparams("sb3_macb/CommunicativeNavigation-v0", variants=["fast"],
                           overrides={"batch_size": 16, "policy_kwargs": "dict(net_arch=[16])",
-                                     "exploration.k": int(params["exploration.k"]), "exploration.beta": float(params["exploration.beta"])})  # fmt: skip
-    alone = ExperimentConfig("sb3_macb/CommunicativeNavigation-v0", [RunConfig(int(params["seed"]), str(tmp_path / "alone"), hyperparams=hp)], 120)
+                                     "exploration.k": int(params["exploration.k"]),
+                                     "exploration.beta": float(params["exploration.beta"])})  # fmt: skip
+    alone = ExperimentConfig(
+        "sb3_macb/CommunicativeNavigation-v0", [RunConfig(int(params["seed"]), str(tmp_path / "alone"), hyperparams=hp)], 120
+    )
     Experiment(alone, str(tmp_path / "alone_exp"), verbose=0).run()
     a, b = np.load(tmp_path / "alone" / "evaluations.npz"), np.load(tmp_path / "sw" / "p" / "trial_1" / "evaluations.npz")
     assert all(np.array_equal(a[name], b[name]) for name in a.files)
@@ -374,8 +383,8 @@ def test_sweep_pack_trains_queued_points_together_as_they_would_run_alone(tmp_pa
 def test_every_spelling_of_the_config_option_is_used(tmp_path, spelling):
     conf = tmp_path / "tiny.yml"
     entry = yaml.safe_load(Path(DEFAULT_CONFIG).read_text())["sb3_macb/CommunicativeNavigation-v0"]
-    conf.write_text(yaml.safe_dump({"sb3_macb/CommunicativeNavigation-v0": {**entry, "n_timesteps": 40,
-                                    "policy_kwargs": "dict(net_arch=[8])", "learning_starts": 10, "batch_size": 4}}))  # fmt: skip
+    small = {"n_timesteps": 40, "policy_kwargs": "dict(net_arch=[8])", "learning_starts": 10, "batch_size": 4}
+    conf.write_text(yaml.safe_dump({"sb3_macb/CommunicativeNavigation-v0": {**entry, **small}}))
     option = [spelling + str(conf)] if spelling.endswith("=") else [spelling, str(conf)]
     folder = train(["--env", "sb3_macb/CommunicativeNavigation-v0", "-f", str(tmp_path / "logs"), "--no-progress",
                     "--verbose", "0", *option])  # fmt: skip
@@ -405,7 +414,9 @@ def test_hyperparameter_strings_cannot_run_code(tmp_path):
                                             "hyperparams": {"policy_kwargs": attack}, "grid": {"exploration.k": [8]},
                                             "seeds": [0]}))  # fmt: skip
     with pytest.raises(ExperimentError, match="policy_kwargs"):
-        sweep_module.run_trial(sweep_module.load_config(str(sweep_config)), {"exploration.k": 8, "seed": 0}, str(tmp_path / "t"))
+        sweep_module.run_trial(
+            sweep_module.load_config(str(sweep_config)), {"exploration.k": 8, "seed": 0}, str(tmp_path / "t")
+        )
     assert not marker.exists()
     with pytest.raises(ExperimentError, match="-params.*'learning_rat'.*did you mean 'learning_rate'"):
         train([*env, "-params", "learning_rat:0.1"])
@@ -419,7 +430,9 @@ def test_policy_alone_saves_and_loads(tmp_path):
     from sb3_macb import MADDPGPolicy
     from sb3_macb.envs.vec_tasks import make_task_vec_env
 
-    model = MADDPG("MlpPolicy", make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 1), policy_kwargs=dict(net_arch=[8]), seed=0)
+    model = MADDPG(
+        "MlpPolicy", make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 1), policy_kwargs=dict(net_arch=[8]), seed=0
+    )
     model.policy.save(tmp_path / "policy.pth")
     policy = MADDPGPolicy.load(tmp_path / "policy.pth")
     obs = make_task_vec_env("sb3_macb/CommunicativeNavigation-v0", 4).reset()
@@ -461,7 +474,9 @@ def test_a_sweep_repairs_a_partial_queue_retries_failures_and_reports_them(tmp_p
     data["hyperparams"]["env_kwargs"] = {"reward": "bogus"}  # every run of it fails
     broken.write_text(yaml.safe_dump(data))
     assert work(str(broken), storage_url, "broken", str(tmp_path / "logs"), max_attempts=2) == 1
-    failed = [t for t in optuna.load_study(study_name="broken", storage=storage_url).get_trials() if t.state == TrialState.FAIL]
+    failed = [
+        t for t in optuna.load_study(study_name="broken", storage=storage_url).get_trials() if t.state == TrialState.FAIL
+    ]
     assert len(failed) == 2 and "bogus" in failed[0].user_attrs["error"]
     rows = list(csv_module.DictReader(open(tmp_path / "logs" / "broken" / "results.csv")))
     assert rows[0]["status"] == "failed" and "bogus" in rows[0]["error"]
@@ -488,7 +503,9 @@ def test_a_storage_whose_database_driver_is_missing_names_the_extra_at_once(monk
     for driver in ("psycopg", "psycopg2"):
         monkeypatch.setitem(sys.modules, driver, None)  # as if not installed
     start = time.time()
-    with pytest.raises(ConnectionError, match=r"postgresql://user:\*\*\*@127.0.0.1:1/db: .*pip install 'sb3_macb\[postgres\]'"):
+    with pytest.raises(
+        ConnectionError, match=r"postgresql://user:\*\*\*@127.0.0.1:1/db: .*pip install 'sb3_macb\[postgres\]'"
+    ):
         make_storage("postgresql://user:secret@127.0.0.1:1/db", 30, connect_timeout=1, deadline=20)
     assert time.time() - start < 10  # no retries: a missing driver does not come back
 
@@ -577,7 +594,9 @@ def test_a_trial_failed_by_another_worker_while_it_ran_is_run_again(tmp_path, mo
 
 
 @pytest.mark.parametrize("pack", [0, 2])
-def test_the_retry_of_a_dead_workers_point_resumes_from_its_checkpoint_and_ends_as_if_never_stopped(tmp_path, monkeypatch, pack):
+def test_the_retry_of_a_dead_workers_point_resumes_from_its_checkpoint_and_ends_as_if_never_stopped(
+    tmp_path, monkeypatch, pack
+):
     from sb3_macb.zoo.experiment import Experiment
     from sb3_macb.zoo.sweep import work
 
@@ -602,10 +621,15 @@ def test_the_retry_of_a_dead_workers_point_resumes_from_its_checkpoint_and_ends_
 
     resumed = []
     real_run = Experiment.run
-    monkeypatch.setattr(Experiment, "run", lambda self, resume=False: (resumed.append((self.folder, resume)), real_run(self, resume))[1])
+    monkeypatch.setattr(
+        Experiment, "run", lambda self, resume=False: (resumed.append((self.folder, resume)), real_run(self, resume))[1]
+    )
     assert work(str(config), url, "s", str(tmp_path / "cut"), heartbeat=1, pack=pack, checkpoint_freq=100, poll=0.5) == 0
     assert resumed == [(str(tmp_path / "cut" / "s" / first), True)]  # one experiment, continued from its checkpoint
-    assert work(str(config), f"sqlite:///{tmp_path / 'whole.db'}", "s", str(tmp_path / "whole"), pack=pack, checkpoint_freq=100) == 0
+    assert (
+        work(str(config), f"sqlite:///{tmp_path / 'whole.db'}", "s", str(tmp_path / "whole"), pack=pack, checkpoint_freq=100)
+        == 0
+    )
     study = optuna.load_study(study_name="s", storage=url)
     done = [t for t in study.get_trials() if t.state == TrialState.COMPLETE]
     assert len(done) == (2 if pack else 1) and all(t.number >= len(done) for t in done)  # the retries of the dead trials

@@ -51,13 +51,13 @@ class Rendezvous(ParallelEnv):
         self.t = 0
         self.rng = np.random.default_rng()
 
-    @functools.lru_cache(maxsize=None)
+    @functools.cache  # noqa: B019 (a few envs per test: the cache keeping them alive is harmless)
     def observation_space(self, agent: str) -> spaces.Space:
         if self.dict_obs:
             return spaces.Dict({"pos": spaces.Box(-2, 2, (1,), np.float32)})
         return spaces.Box(-2, 2, (1,) if agent == "a" else (2,), np.float32)
 
-    @functools.lru_cache(maxsize=None)
+    @functools.cache  # noqa: B019 (a few envs per test: the cache keeping them alive is harmless)
     def action_space(self, agent: str) -> spaces.Space:
         if self.multi_discrete and agent == "a":
             return spaces.MultiDiscrete([3, 2])

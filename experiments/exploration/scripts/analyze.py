@@ -25,9 +25,8 @@ STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
 sys.path[:0] = [p for p in (CHECKOUT, os.path.join(STUDY, "scripts")) if p not in sys.path[:2]]
 
-from study_tasks import CANDIDATES  # noqa: E402
-
 from sb3_macb.common import evaluations  # noqa: E402
+from study_tasks import CANDIDATES  # noqa: E402
 
 WINDOW = 200  # evaluations: the final level's window and the moving average of the episodes to a threshold
 ENTRY_MAX_FINAL = 0.30  # plain MADDPG's final success below this ...

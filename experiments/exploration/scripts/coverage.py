@@ -29,11 +29,10 @@ CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
 sys.path[:0] = [p for p in (CHECKOUT, os.path.join(STUDY, "scripts")) if p not in sys.path[:2]]
 
 from run_study import METHODS  # noqa: E402
-from study_tasks import CANDIDATES, EPISODE_STEPS  # noqa: E402
-
 from sb3_macb.envs.scripted import scripted_actions  # noqa: E402
 from sb3_macb.envs.vec_spread import SpreadVecEnv  # noqa: E402
 from sb3_macb.envs.vec_tasks import TaskVecEnv, make_task_vec_env  # noqa: E402
+from study_tasks import CANDIDATES, EPISODE_STEPS  # noqa: E402
 
 SPREAD_COLUMNS = {
     "covered_last": ("landmarks covered at the last step", "{:.2f}"),

@@ -20,9 +20,8 @@ sys.path[:0] = [p for p in (CHECKOUT, os.path.join(STUDY, "scripts")) if p not i
 
 from analyze import load_runs  # noqa: E402
 from run_study import METHODS  # noqa: E402
-from study_tasks import CANDIDATES  # noqa: E402
-
 from sb3_macb.common import evaluations  # noqa: E402
+from study_tasks import CANDIDATES  # noqa: E402
 
 
 def _base_task(folder: str) -> str:

@@ -29,9 +29,8 @@ STUDY = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # experimen
 CHECKOUT = os.path.dirname(os.path.dirname(STUDY))
 sys.path[:0] = [p for p in (CHECKOUT, os.path.join(STUDY, "scripts")) if p not in sys.path[:2]]
 
-from study_tasks import BUDGET, CANDIDATES, EPISODE_STEPS  # noqa: E402
-
 from sb3_macb.zoo.processes import run_packs  # noqa: E402
+from study_tasks import BUDGET, CANDIDATES, EPISODE_STEPS  # noqa: E402
 
 CONFIG = os.path.join(STUDY, "study.yml")
 METHODS = ("maddpg", "macb_paper", "macb_k", "macb_k_center", "macb_k_center_int", "macb_k_sketch", "rnd", "constant")

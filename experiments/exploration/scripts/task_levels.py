@@ -17,10 +17,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from study_tasks import CANDIDATES  # noqa: E402
-
 from sb3_macb.envs.scripted import scripted_actions  # noqa: E402
 from sb3_macb.envs.vec_tasks import make_task_vec_env  # noqa: E402
+from study_tasks import CANDIDATES  # noqa: E402
 
 
 def success_rate(task: str, policy: str, episodes: int, seed: int) -> float:

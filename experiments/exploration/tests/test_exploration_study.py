@@ -11,9 +11,8 @@ STUDY = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(STUDY / "scripts"))
 
 import run_study  # noqa: E402
-from study_tasks import BUDGET, CANDIDATES, EPISODE_STEPS  # noqa: E402
-
 from sb3_macb.zoo.experiment import load_hyperparams  # noqa: E402
+from study_tasks import BUDGET, CANDIDATES, EPISODE_STEPS  # noqa: E402
 
 
 def study(*args, cwd=STUDY):
@@ -176,7 +175,6 @@ def test_the_study_curves_draw_every_complete_method_and_refuse_an_unknown_task(
 
 def test_coverage_tells_the_scripted_policy_from_random_actions():
     import coverage
-
     from sb3_macb.envs.scripted import scripted_actions
 
     rng = np.random.default_rng(0)
@@ -188,7 +186,6 @@ def test_coverage_tells_the_scripted_policy_from_random_actions():
 
 def test_listener_reach_tells_the_scripted_policy_from_random_actions():
     import coverage
-
     from sb3_macb.envs.scripted import scripted_actions
 
     rng = np.random.default_rng(0)

@@ -37,7 +37,6 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from headline_analysis import MARGIN, WINDOW, Run, complete_runs, decide_c2  # noqa: E402  (sibling scripts)
 from nav_analysis import FLOOR, FRACTION, NavRun, variant_table  # noqa: E402
-
 from sb3_macb.common import evaluations  # noqa: E402
 
 SPEEDUP = 0.75

@@ -37,7 +37,6 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from headline_analysis import WINDOW, Run, complete_runs, decide_c2  # noqa: E402  (a sibling script)
-
 from sb3_macb.common import evaluations  # noqa: E402
 
 MACB_VARIANTS = ("macb_joint", "macb_local", "macb_state")

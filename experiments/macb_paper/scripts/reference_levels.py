@@ -17,8 +17,8 @@ import os
 import sys
 
 import numpy as np
-from reference_policies import GoalListener, LandmarkTourListener, RandomLandmarkListener  # beside this script
 
+from reference_policies import GoalListener, LandmarkTourListener, RandomLandmarkListener  # beside this script
 from sb3_macb.common.atomic import atomic_write
 from sb3_macb.envs.vec_tasks import make_task_vec_env
 

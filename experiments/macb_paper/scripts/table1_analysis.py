@@ -38,7 +38,6 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from headline_analysis import MARGIN, WINDOW, Run, complete_runs, decide_c2  # noqa: E402  (a sibling script)
-
 from sb3_macb.common import evaluations  # noqa: E402
 
 BETAS, KS = (0.05, 0.2, 0.4, 0.8), (32, 64, 256, 512)
@@ -133,8 +132,8 @@ def analyse(task_folder: str, base_folder: str, seeds: int) -> str:
                      f"and {np.mean(rows[32]):.3f} (difference {difference:+.3f}, decided at +/-{MARGIN}).")  # fmt: skip
     counts = {(b, k): float(np.mean([r.count1 for r in runs])) for (b, k), runs in complete.items()}
     if len(counts) == len(BETAS) * len(KS):
-        broken = [b for b in BETAS
-                  if any(counts[(b, k1)] >= counts[(b, k2)] for k1, k2 in zip(KS, KS[1:])) or counts[(b, 512)] < COUNT1_AT_512]  # fmt: skip
+        broken = [b for b in BETAS if any(counts[(b, k1)] >= counts[(b, k2)] for k1, k2 in zip(KS, KS[1:]))
+                  or counts[(b, 512)] < COUNT1_AT_512]  # fmt: skip
         decision = "confirmed" if not broken else f"not confirmed (beta {', '.join(map(str, broken))})"
         lines.append(f"- K3, count-1 rises with k and reaches {COUNT1_AT_512} at k = 512: {tag}**{decision}**.")
     for k in KS:

@@ -436,6 +436,7 @@ def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
     import types
 
     import torch as th
+
     from reference_policies import GoalListener
 
     class Conflating(GoalListener):
@@ -580,7 +581,8 @@ def test_reproduce_grid_files_one_run_per_point_and_checks_every_setting_first(t
 
     def reproduce_cli(*extra: str) -> subprocess.CompletedProcess:
         command = [sys.executable, "scripts/reproduce.py", "--task", "comm-sparse", "--seeds", "0", "--fast", "-n", "60",
-                   "--checkpoint-freq", "40", "--work", str(tmp_path / "work"), "-o", str(tmp_path / "out"), *extra]  # fmt: skip
+                   "--checkpoint-freq", "40", "--work", str(tmp_path / "work"), "-o", str(tmp_path / "out"),
+                   *extra]  # fmt: skip
         return subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=STUDY)
 
     # bad settings: one line naming the run and what is allowed, before anything is created
@@ -602,7 +604,10 @@ def test_reproduce_grid_files_one_run_per_point_and_checks_every_setting_first(t
     for k in (32, 64):
         run = task / f"macb_joint+exploration.beta=0.05+exploration.k={k}" / "seed_0"
         config = yaml.safe_load((run / "config.yml").read_text())
-        assert config["exploration"] == {"beta": 0.05, "k": k, "scope": "joint"} and config["variants"] == ["macb_joint", "fast"]
+        assert config["exploration"] == {"beta": 0.05, "k": k, "scope": "joint"} and config["variants"] == [
+            "macb_joint",
+            "fast",
+        ]
         assert json.loads((run / "run.json").read_text())["complete"] is True
     assert "already complete" in reproduce_cli("--variants", "macb_joint,exploration.beta=0.05,exploration.k=64").stdout
     # a pack of a grid's runs has a work folder name that fits a file system's 255 bytes, one per set of runs
@@ -613,7 +618,9 @@ def test_reproduce_grid_files_one_run_per_point_and_checks_every_setting_first(t
                                   ["macb_joint"], ["exploration.beta=0.05,0.2", "exploration.k=32,64,256,512"]))  # fmt: skip
     (work, jobs), = reproduce.plan(args)
     name = os.path.basename(work)
-    assert len(jobs) == 8 and len(name) < 255 and name.startswith("macb_joint+exploration.beta=0.05+exploration.k=32-and-7-more-")
+    assert (
+        len(jobs) == 8 and len(name) < 255 and name.startswith("macb_joint+exploration.beta=0.05+exploration.k=32-and-7-more-")
+    )
     args.variants = args.variants[:7]
     assert os.path.basename(reproduce.plan(args)[0][0]) != name
 
