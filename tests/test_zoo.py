@@ -641,6 +641,36 @@ def test_the_retry_of_a_dead_workers_point_resumes_from_its_checkpoint_and_ends_
         assert all(np.array_equal(cut[key], whole[key]) for key in whole.files)
 
 
+def test_a_retry_whose_folder_is_still_being_trained_starts_again_in_its_own(tmp_path):
+    """A worker failed for a late heartbeat still trains (and holds its folder's lock): its retry keeps out."""
+    from contextlib import nullcontext
+
+    from sb3_macb.zoo.sweep import _folder_lock, grid_points, point_key, work
+
+    lock = str(tmp_path / "x.lock")
+    with _folder_lock(lock) as first, _folder_lock(lock) as second:
+        assert first and not second  # (a second open file description: the lock is the first's)
+    with _folder_lock(lock) as again:
+        assert again  # released with the first
+    config = sweep_config(tmp_path, n_timesteps=40, betas=(0.5,), ks=(16,))
+    [point] = grid_points(load_config(str(config)))
+    for name, busy in (("busy", True), ("free", False)):
+        url = f"sqlite:///{tmp_path / name}.db"
+        study = optuna.create_study(study_name=name, storage=make_storage(url, 30), direction="maximize")
+        optuna.create_study(study_name=f"{name}.grid", storage=url).set_user_attr("n_points", 1)
+        # the retry of trial 5, as Optuna's RetryFailedTrialCallback queues it (the user attributes copied)
+        attrs = {"grid_point": True, "point": point_key(point), "run_name": "trial_5", "pack_name": ""}
+        study.enqueue_trial(point, user_attrs=attrs)
+        held = _folder_lock(str(tmp_path / "logs" / name / "trial_5.lock")) if busy else nullcontext(True)
+        with held as holding:
+            assert holding
+            assert work(str(config), url, name, str(tmp_path / "logs"), checkpoint_freq=20, enqueue_wait=0.5) == 0
+        [done] = [t for t in optuna.load_study(study_name=name, storage=url).get_trials() if t.state == TrialState.COMPLETE]
+        expected = "trial_0" if busy else "trial_5"  # its own number's folder, or the dead attempt's
+        assert os.path.basename(done.user_attrs["run_folder"]) == expected and done.user_attrs["run_name"] == expected
+        assert os.path.isfile(tmp_path / "logs" / name / expected / "evaluations.npz")
+
+
 def test_a_folder_name_inherited_from_the_storage_never_reaches_outside_the_sweeps_folder():
     from types import SimpleNamespace
 

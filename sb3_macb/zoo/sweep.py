@@ -10,7 +10,9 @@ grid:
 - workers send heartbeats; the trial of a worker that dies is failed by the next worker that looks at the study
   and put back in the queue (Optuna's ``RetryHeartbeatStaleTrialCallback``), where another worker picks it up;
   with ``--checkpoint-freq N`` it resumes from the dead worker's last checkpoint (a pack resumes whole) where it can
-  reach it (the same machine or a shared file system), and otherwise starts again;
+  reach it (the same machine or a shared file system), and otherwise starts again; a worker holds a lock on the
+  folder it trains (``NAME/trial_N.lock``, ``pack_N.lock``), so that the retry of a worker that is alive but was
+  failed for a late heartbeat starts again in folders of its own instead of writing into the running one;
 - every worker checks the study against the grid and queues what is missing (a worker killed while queueing the
   grid, a point whose trial failed); a point that failed ``--max-attempts`` times is given up;
 - a worker leaves when nothing is waiting or running, writes ``results.csv`` (every point with its status: done,
@@ -43,7 +45,8 @@ import os
 import sys
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from copy import deepcopy
 from typing import Any, TypeVar
 
@@ -654,11 +657,20 @@ def _work_on_pack(
         names = [_run_name(trial, resume=checkpoint_freq is not None and alone) for trial, _ in claimed]
     if not alone:
         pack_name = pack_name or "pack_" + names[0].removeprefix("trial_")
-    for (trial, _), name in zip(claimed, names):  # (inherited by the trial's retry if this worker dies)
-        trial.set_user_attr("run_name", name)
-        trial.set_user_attr("pack_name", pack_name or "")
+    folders = ExitStack()
+    if checkpoint_freq is not None:
+        # the folder a retry would continue may still be trained by a worker that is alive but was failed for a late
+        # heartbeat: a worker holds its experiment folder's lock while it trains, and a retry that finds it held starts
+        # again in new folders
+        if not folders.enter_context(_folder_lock(os.path.join(folder, f"{pack_name or names[0]}.lock"))):
+            names = [f"trial_{trial.number}" for trial, _ in claimed]
+            pack_name = None if alone else "pack_" + names[0].removeprefix("trial_")
+            folders.enter_context(_folder_lock(os.path.join(folder, f"{pack_name or names[0]}.lock")))
     try:
-        with _Heartbeats(storage, [trial_id(t, storage, study.study_name) for t, _ in claimed], heartbeat) as beats:
+        with folders, _Heartbeats(storage, [trial_id(t, storage, study.study_name) for t, _ in claimed], heartbeat) as beats:
+            for (trial, _), name in zip(claimed, names):  # (inherited by the trial's retry if this worker dies)
+                trial.set_user_attr("run_name", name)
+                trial.set_user_attr("pack_name", pack_name or "")
             if alone:
                 [(_, params)] = claimed
                 results: list[Any] = [
@@ -747,6 +759,32 @@ def _claim_pack_to_resume(
         if claimed:
             return (pack if len(claimed) == len(members) else None), claimed
     return None, []
+
+
+@contextmanager
+def _folder_lock(path: str) -> Iterator[bool]:
+    """
+    Hold an exclusive advisory lock (``flock``) on the lock file ``path`` while no other process holds it; yields
+    whether it does. Where ``fcntl`` is missing (Windows) it yields True without a lock.
+
+    :param path: The lock file (created if missing, never deleted).
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover (not on POSIX)
+        yield True
+        return
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    descriptor = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+            return
+        yield True
+    finally:
+        os.close(descriptor)  # (releases the lock)
 
 
 def _claim(study: optuna.Study, storage: optuna.storages.RDBStorage, frozen: Any) -> optuna.Trial | None:
