@@ -671,6 +671,34 @@ def test_a_retry_whose_folder_is_still_being_trained_starts_again_in_its_own(tmp
         assert os.path.isfile(tmp_path / "logs" / name / expected / "evaluations.npz")
 
 
+def test_a_dead_workers_pack_is_claimed_whole_and_waited_for_while_its_runs_go_stale_one_by_one(tmp_path):
+    from sb3_macb.zoo.experiment import Experiment, ExperimentConfig, RunConfig, load_hyperparams
+    from sb3_macb.zoo.sweep import _claim_pack_to_resume, _folder_lock
+
+    folder = tmp_path / "logs" / "s"
+    hp = load_hyperparams(COMM, variants=["fast"])
+    runs = [RunConfig(seed, str(folder / f"trial_{seed}"), hyperparams=hp) for seed in (0, 1)]
+    os.makedirs(folder / "pack_0")
+    Experiment(ExperimentConfig(COMM, runs, n_timesteps=100), str(folder / "pack_0"))._write_experiment_file(done=False)
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    storage = make_storage(url, 30)
+    study = optuna.create_study(study_name="s", storage=storage, direction="maximize")
+    for run in ("trial_1", "trial_0"):  # (as the dead worker's trials are retried: user attributes copied)
+        study.enqueue_trial({"seed": int(run[-1])}, user_attrs={"grid_point": True, "run_name": run, "pack_name": "pack_0"})
+    with pytest.warns(UserWarning):
+        study.ask()  # trial_1's: still running (its heartbeat not stale yet), trial_0's retry waiting
+    assert _claim_pack_to_resume(study, storage, str(folder)) == (None, [], True)  # wait for trial_1's retry
+    with _folder_lock(str(folder / "pack_0.lock")):  # unless the pack's worker is alive: then the queue has them
+        assert _claim_pack_to_resume(study, storage, str(folder)) == (None, [], False)
+    study.enqueue_trial({"seed": 1}, user_attrs={"grid_point": True, "run_name": "trial_1", "pack_name": "pack_0"})
+    # both waiting: a worker that cannot reach the pack's folder leaves them to the queue; one that can claims both
+    assert _claim_pack_to_resume(study, storage, str(tmp_path / "elsewhere")) == (None, [], False)
+    assert len(study.get_trials(states=(TrialState.WAITING,))) == 2
+    name, claimed, wait = _claim_pack_to_resume(study, storage, str(folder))
+    assert name == "pack_0" and not wait and sorted(t.user_attrs["run_name"] for t in claimed) == ["trial_0", "trial_1"]
+    assert not study.get_trials(states=(TrialState.WAITING,))
+
+
 def test_a_folder_name_inherited_from_the_storage_never_reaches_outside_the_sweeps_folder():
     from types import SimpleNamespace
 

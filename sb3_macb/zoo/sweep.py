@@ -602,8 +602,9 @@ def work(
         if waiting:
             size = min(pack, waiting) if pack > 0 else 1
             try:  # a failing point is failed (then retried, then reported); the worker goes on
-                _work_on_pack(study, storage, config, size, os.path.join(log_folder, study_name), heartbeat, alone=pack == 0,
-                              checkpoint_freq=checkpoint_freq)  # fmt: skip
+                if not _work_on_pack(study, storage, config, size, os.path.join(log_folder, study_name), heartbeat,
+                                     alone=pack == 0, checkpoint_freq=checkpoint_freq):  # fmt: skip
+                    time.sleep(poll)  # (waiting for the rest of a dead worker's pack to be queued)
             except ConnectionError:
                 raise
             except Exception as exc:  # noqa: BLE001
@@ -626,17 +627,19 @@ def _work_on_pack(
     heartbeat: int,
     alone: bool = False,
     checkpoint_freq: int | None = None,
-) -> None:
+) -> bool:
     """
     Claim up to ``size`` waiting grid points, train them as one pack (``alone``: one point, in its own trial folder,
     as :func:`run_trial` runs it) and report each. With ``checkpoint_freq``, the points of a dead worker's
     checkpointed pack are claimed together first and resumed (see :func:`_claim_pack_to_resume`), and a point run
-    alone resumes its dead attempt's run folder.
+    alone resumes its dead attempt's run folder. Returns whether it claimed any point.
     """
     claimed: list[tuple[optuna.Trial, dict[str, Any]]] = []
     pack_name = None
     if checkpoint_freq is not None and not alone:
-        pack_name, trials = _claim_pack_to_resume(study, storage, folder)
+        pack_name, trials, wait = _claim_pack_to_resume(study, storage, folder)
+        if wait:
+            return False
         claimed = [(t, _grid_params(t, config)) for t in trials]
     for _ in range(size - len(claimed) if not claimed else 0):
         with warnings.catch_warnings():  # (heartbeats are sent by _Heartbeats below, not by study.optimize)
@@ -650,7 +653,7 @@ def _work_on_pack(
             break
         claimed.append((trial, _grid_params(trial, config)))
     if not claimed:
-        return
+        return False
     if pack_name is not None:  # a dead worker's pack, resumed in its own folders
         names = [str(trial.user_attrs["run_name"]) for trial, _ in claimed]
     else:
@@ -701,6 +704,7 @@ def _work_on_pack(
             if not _finished_elsewhere(exc):
                 raise
             print(f"sb3-macb sweep: trial {trial.number}: {_LATE}", file=sys.stderr)
+    return True
 
 
 def _grid_params(trial: optuna.Trial, config: dict[str, Any]) -> dict[str, Any]:
@@ -733,32 +737,45 @@ def _run_name(trial: optuna.Trial, resume: bool) -> str:
 
 def _claim_pack_to_resume(
     study: optuna.Study, storage: optuna.storages.RDBStorage, folder: str
-) -> tuple[str | None, list[optuna.Trial]]:
+) -> tuple[str | None, list[optuna.Trial], bool]:
     """
     Claim together the waiting retries of a dead worker's pack whose checkpoint this worker can reach (its pack folder
-    in ``folder``), when all its runs are waiting: (the pack's folder name, the claimed trials). Another worker may
-    claim one of them first; the ones claimed then run as a new pack (name None). ``(None, [])`` when there is no such
-    pack.
+    in ``folder``), when all its runs are waiting: (the pack's folder name, the claimed trials, False). Another worker
+    may claim one of them first; the ones claimed then run as a new pack (name None). The trials of a pack go stale
+    one by one (their heartbeats were sent one after another), so while some of a pack's runs are waiting and the
+    others still running, nothing is claimed and the third value is True: wait, rather than let the queue hand out
+    the waiting ones alone. ``(None, [], False)`` when there is no such pack.
     """
     from sb3_macb.zoo.experiment import ExperimentError, read_experiment_file
 
     groups: dict[str, list[Any]] = {}
-    for frozen in study.get_trials(deepcopy=False, states=(TrialState.WAITING,)):
+    running: dict[str, set[str]] = {}
+    for frozen in study.get_trials(deepcopy=False, states=(TrialState.WAITING, TrialState.RUNNING)):
         pack, run = _inherited_name(frozen, "pack_name", "pack_"), _inherited_name(frozen, "run_name", "trial_")
         if pack is not None and run is not None:
-            groups.setdefault(pack, []).append(frozen)
+            if frozen.state == TrialState.WAITING:
+                groups.setdefault(pack, []).append(frozen)
+            else:
+                running.setdefault(pack, set()).add(run)
+    wait = False
     for pack, members in groups.items():
         try:
             saved = read_experiment_file(os.path.join(folder, pack, "experiment.json"))
         except ExperimentError:  # not reachable from here (another machine's disk), or stopped before it was written
             continue
-        runs = sorted(os.path.basename(str(r.get("folder", ""))) for r in saved["config"]["runs"] if isinstance(r, dict))
-        if sorted(m.user_attrs["run_name"] for m in members) != runs:
-            continue  # not all of its runs are waiting (yet): left to the queue
+        runs = {os.path.basename(str(r.get("folder", ""))) for r in saved["config"]["runs"] if isinstance(r, dict)}
+        waiting = {str(m.user_attrs["run_name"]) for m in members}
+        if waiting != runs:
+            # wait for the others while they are still running in a dead worker (they will be failed and queued
+            # too); gone, or running in a live worker (its lock held), they leave the waiting ones to the queue
+            if waiting < runs and runs - waiting <= running.get(pack, set()):
+                with _folder_lock(os.path.join(folder, f"{pack}.lock")) as free:
+                    wait = wait or free
+            continue
         claimed = [trial for trial in (_claim(study, storage, m) for m in members) if trial is not None]
         if claimed:
-            return (pack if len(claimed) == len(members) else None), claimed
-    return None, []
+            return (pack if len(claimed) == len(members) else None), claimed, False
+    return None, [], wait
 
 
 @contextmanager
