@@ -661,7 +661,7 @@ def test_a_retry_whose_folder_is_still_being_trained_starts_again_in_its_own(tmp
         # the retry of trial 5, as Optuna's RetryFailedTrialCallback queues it (the user attributes copied)
         attrs = {"grid_point": True, "point": point_key(point), "run_name": "trial_5", "pack_name": ""}
         study.enqueue_trial(point, user_attrs=attrs)
-        held = _folder_lock(str(tmp_path / "logs" / name / "trial_5.lock")) if busy else nullcontext(True)
+        held = _folder_lock(str(tmp_path / "logs" / name / "locks" / "trial_5.lock")) if busy else nullcontext(True)
         with held as holding:
             assert holding
             assert work(str(config), url, name, str(tmp_path / "logs"), checkpoint_freq=20, enqueue_wait=0.5) == 0
@@ -688,7 +688,7 @@ def test_a_dead_workers_pack_is_claimed_whole_and_waited_for_while_its_runs_go_s
     with pytest.warns(UserWarning):
         study.ask()  # trial_1's: still running (its heartbeat not stale yet), trial_0's retry waiting
     assert _claim_pack_to_resume(study, storage, str(folder)) == (None, [], True)  # wait for trial_1's retry
-    with _folder_lock(str(folder / "pack_0.lock")):  # unless the pack's worker is alive: then the queue has them
+    with _folder_lock(str(folder / "locks" / "pack_0.lock")):  # unless the pack's worker is alive: then the queue has them
         assert _claim_pack_to_resume(study, storage, str(folder)) == (None, [], False)
     study.enqueue_trial({"seed": 1}, user_attrs={"grid_point": True, "run_name": "trial_1", "pack_name": "pack_0"})
     # both waiting: a worker that cannot reach the pack's folder leaves them to the queue; one that can claims both

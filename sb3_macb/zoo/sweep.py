@@ -10,8 +10,8 @@ grid:
 - workers send heartbeats; the trial of a worker that dies is failed by the next worker that looks at the study
   and put back in the queue (Optuna's ``RetryHeartbeatStaleTrialCallback``), where another worker picks it up;
   with ``--checkpoint-freq N`` it resumes from the dead worker's last checkpoint (a pack resumes whole) where it can
-  reach it (the same machine or a shared file system), and otherwise starts again; a worker holds a lock on the
-  folder it trains (``NAME/trial_N.lock``, ``pack_N.lock``), so that the retry of a worker that is alive but was
+  reach it (the same machine or a shared file system), and otherwise starts again; every worker holds a lock on the
+  folder it trains (``NAME/locks/trial_N.lock``, ``pack_N.lock``), so that the retry of a worker that is alive but was
   failed for a late heartbeat starts again in folders of its own instead of writing into the running one;
 - every worker checks the study against the grid and queues what is missing (a worker killed while queueing the
   grid, a point whose trial failed); a point that failed ``--max-attempts`` times is given up;
@@ -660,15 +660,14 @@ def _work_on_pack(
         names = [_run_name(trial, resume=checkpoint_freq is not None and alone) for trial, _ in claimed]
     if not alone:
         pack_name = pack_name or "pack_" + names[0].removeprefix("trial_")
+    # the folder a retry would continue may still be trained by a worker that is alive but was failed for a late
+    # heartbeat: every worker holds its experiment folder's lock while it trains, and a retry that finds it held starts
+    # again in new folders
     folders = ExitStack()
-    if checkpoint_freq is not None:
-        # the folder a retry would continue may still be trained by a worker that is alive but was failed for a late
-        # heartbeat: a worker holds its experiment folder's lock while it trains, and a retry that finds it held starts
-        # again in new folders
-        if not folders.enter_context(_folder_lock(os.path.join(folder, f"{pack_name or names[0]}.lock"))):
-            names = [f"trial_{trial.number}" for trial, _ in claimed]
-            pack_name = None if alone else "pack_" + names[0].removeprefix("trial_")
-            folders.enter_context(_folder_lock(os.path.join(folder, f"{pack_name or names[0]}.lock")))
+    if not folders.enter_context(_folder_lock(os.path.join(folder, "locks", f"{pack_name or names[0]}.lock"))):
+        names = [f"trial_{trial.number}" for trial, _ in claimed]
+        pack_name = None if alone else "pack_" + names[0].removeprefix("trial_")
+        folders.enter_context(_folder_lock(os.path.join(folder, "locks", f"{pack_name or names[0]}.lock")))
     try:
         with folders, _Heartbeats(storage, [trial_id(t, storage, study.study_name) for t, _ in claimed], heartbeat) as beats:
             for (trial, _), name in zip(claimed, names):  # (inherited by the trial's retry if this worker dies)
@@ -769,7 +768,7 @@ def _claim_pack_to_resume(
             # wait for the others while they are still running in a dead worker (they will be failed and queued
             # too); gone, or running in a live worker (its lock held), they leave the waiting ones to the queue
             if waiting < runs and runs - waiting <= running.get(pack, set()):
-                with _folder_lock(os.path.join(folder, f"{pack}.lock")) as free:
+                with _folder_lock(os.path.join(folder, "locks", f"{pack}.lock")) as free:
                     wait = wait or free
             continue
         claimed = [trial for trial in (_claim(study, storage, m) for m in members) if trial is not None]
