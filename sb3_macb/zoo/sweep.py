@@ -448,10 +448,7 @@ def run_pack(config: dict[str, Any], points: list[tuple[str, dict[str, Any]]], l
         pack_name = pack_name or "pack_" + points[0][0].removeprefix("trial_")
         experiment = Experiment(experiment_config, os.path.join(log_folder, pack_name), checkpoint_freq=checkpoint_freq,
                                 verbose=0, callbacks=callbacks)  # fmt: skip
-        if checkpoint_freq is None:
-            experiment.run()
-        else:
-            run_or_resume(experiment)
+        run_or_resume(experiment)  # (a new pack's folder is new: it starts)
     return [o if isinstance(o, Exception) else _trial_result(config, o[0].folder) for o in outcomes]
 
 
