@@ -2,7 +2,7 @@
 The pre-registered analysis of 2-Agent Navigation at the paper's size (the study's README.md, "2-Agent Navigation at the
 paper's size: pre-registered analysis"), applied mechanically:
 
-    python scripts/nav_analysis.py results/TwoAgentNavigation-sparse-paper-1e6 --expected-seeds 3
+    python scripts/nav_analysis.py results/TwoAgentNavigation-sparse-paper --expected-seeds 3
 
 Only complete runs (``run.json`` with ``complete: true``) are used; with fewer complete seeds per variant than
 ``--expected-seeds`` every decision is printed as INTERIM.
