@@ -1,6 +1,6 @@
 """
-The pre-registered check of bfloat16 products on learning (issue 30; the study's README.md, "bf16 check"),
-applied mechanically:
+The pre-registered check of bfloat16 products on learning (issue 30; the study's README.md, "bfloat16 products and
+learning: pre-registered check"), applied mechanically:
 
     python scripts/bf16_check.py results/CommunicativeNavigation-sparse-bf16-2e5/maddpg+bf16 \\
         results/CommunicativeNavigation-sparse-paper/maddpg \\

@@ -1,6 +1,6 @@
 """
-The pre-registered analysis of the paper's Fig. 4 at its size (the study's README.md, "Fig. 4 at the paper's size:
-pre-registered analysis"), applied mechanically:
+The pre-registered analysis of the paper's Fig. 4 at its size (the study's README.md, "Fig. 4 and Table 1 at the
+paper's budget: pre-registered analysis"), applied mechanically:
 
     python scripts/fig4_analysis.py results/CommunicativeNavigation-sparse-paper-1e6 \\
         results/CommunicativeNavigation-distance-paper --expected-seeds 3

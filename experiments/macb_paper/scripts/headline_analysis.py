@@ -1,6 +1,6 @@
 """
-The pre-registered analysis of the headline experiment (the study's README.md, "pre-registered analysis"), applied
-mechanically so that its decisions do not depend on who reads the data:
+The pre-registered analysis of the headline experiment (the study's README.md, "The headline experiment:
+pre-registered analysis"), applied mechanically so that its decisions do not depend on who reads the data:
 
     python scripts/headline_analysis.py results/CommunicativeNavigation-sparse-paper --expected-seeds 3
     python scripts/headline_analysis.py results/CommunicativeNavigation-sparse-4e4 --expected-seeds 5

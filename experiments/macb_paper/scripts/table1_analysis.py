@@ -1,6 +1,6 @@
 """
 The pre-registered analysis of the paper's Table 1 at its budget (4e4 episodes) with 64-64 networks and three seeds
-(the study's README.md, "Table 1 at the paper's budget: pre-registered analysis"), applied mechanically:
+(the study's README.md, "Fig. 4 and Table 1 at the paper's budget: pre-registered analysis"), applied mechanically:
 
     python scripts/table1_analysis.py results/CommunicativeNavigation-sparse-table1-4e4 \\
         --base results/CommunicativeNavigation-sparse-4e4-1e6 --expected-seeds 3
