@@ -5,13 +5,17 @@ run's ``model.zip``), plays ``--episodes`` noise-free episodes with each run's p
 - ``any`` / ``final``: any-step and final-step success of those episodes (as the evaluations);
 - ``sat spk`` / ``sat lis``: the share of the speaker's and the listener's action components within 0.01 of a bound
   (``|a| > 0.99`` in the actors' [-1, 1] units);
-- ``pre lis``: the listener's mean pre-tanh output size (above ~3 the tanh is flat: the actor's gradient through it
-  is below 1% of its unsaturated size, so a saturated actor hardly moves back);
+- ``pre spk`` / ``pre lis``: each agent's mean pre-tanh output size (above ~3 the tanh is flat: the actor's gradient
+  through it is below 1% of its unsaturated size, so a saturated actor hardly moves back);
 - ``Q spk`` / ``Q lis``: each agent's critic's mean Q(s, pi(s)) on the visited states, beside the range any true
   value can take (``Q range``): with the sparse reward in {-1, 0} plus a bonus in [0, beta] on every transition, the
   discounted value lies in [-1/(1-gamma), beta/(1-gamma)], and with the constant bonus (exactly beta) in
   [(beta-1)/(1-gamma), beta/(1-gamma)]; ``Q out``: the share of Q values more than 1 (one step's worst reward)
   outside that range (overestimation or underestimation beyond doubt, not a fitting error at a bound).
+
+``--task nav`` measures 2-Agent Navigation runs the same way, with a column per agent (``agent_0``, ``agent_1``), the
+task's shared success, and its sparse reward's range [-1.5, 0] in place of {-1, 0}; the other tables (``--per-goal``,
+``--on-buffer``) are Communicative Navigation's only.
 
     python scripts/collapse_diagnostics.py logs/archive/seed_1/step_*.zip \\
         --experiment logs/reproduce/CommunicativeNavigation-sparse-paper/seed_1/experiment.json
@@ -85,6 +89,8 @@ from sb3_macb.envs.vec_tasks import make_task_vec_env
 from sb3_macb.zoo.experiment import load_checkpoint, restore_global_rngs
 
 ENV_ID = "sb3_macb/CommunicativeNavigation-v0"
+# per task (``--task``): its env id and the lowest sparse reward of one step, which bounds the values from below
+TASKS = {"comm-sparse": (ENV_ID, -1.0), "nav": ("sb3_macb/TwoAgentNavigation-v0", -1.5)}
 # the task's default success radius (the runs diagnosed here use the default), read from the task's signature
 SUCCESS_RADIUS = inspect.signature(communicative_navigation_v0.parallel_env).parameters["success_radius"].default
 
@@ -104,12 +110,20 @@ def run_labels(experiment: str | None, model: MADDPG) -> list[tuple[str, float, 
     return [("+".join(run["variants"]) or "run", beta, constant) for run, (beta, constant) in zip(runs, bonuses)]
 
 
-def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, seed: int) -> dict[str, float]:
-    """Play ``episodes`` noise-free episodes with run ``k`` of ``model`` and measure it (see the module docstring)."""
+def diagnose(
+    model: MADDPG, k: int, beta: float, constant: bool, episodes: int, seed: int, task: str = "comm-sparse"
+) -> dict[str, float]:
+    """
+    Play ``episodes`` noise-free episodes with run ``k`` of ``model`` and measure it (see the module docstring).
+
+    :param task: a key of ``TASKS``: the task the model was trained on (its sparse reward).
+    """
     solo = model.get_run(k)
     layout = solo.agent_layout
-    listener = layout.agents[agent_index(layout, "listener")]
-    env = make_task_vec_env(ENV_ID, episodes, {"reward": "sparse"})
+    env_id, lowest_reward = TASKS[task]
+    # the task's success is in every agent's info: Communicative Navigation's is the listener's, 2-Agent Navigation's shared
+    listener = layout.agents[agent_index(layout, "listener")] if task == "comm-sparse" else layout.agents[0]
+    env = make_task_vec_env(env_id, episodes, {"reward": "sparse"})
     env.seed(seed)
     obs = env.reset()
     observations, actions, raws = [], [], []
@@ -134,7 +148,8 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
     obs_all, act_all, raw_all = th.cat(observations), th.cat(actions), th.cat(raws)
     with th.no_grad():
         q = solo.critic(obs_all, act_all)[0, 0]  # (n_agents, steps * episodes) of the first critic
-    bounds = ((beta - 1.0 if constant else -1.0) / (1.0 - solo.gamma), beta / (1.0 - solo.gamma))
+    low = lowest_reward + beta if constant else lowest_reward
+    bounds = (low / (1.0 - solo.gamma), beta / (1.0 - solo.gamma))
     out: dict[str, float] = {"any": float(reached.mean()), "final": float(final.mean())}
     start = 0
     for i, name in enumerate(layout.agents):
@@ -142,8 +157,7 @@ def diagnose(model: MADDPG, k: int, beta: float, constant: bool, episodes: int, 
         part = act_all[:, start : start + width]
         short = short_name(name)
         out[f"sat {short}"] = float((part.abs() > 0.99).float().mean())
-        if short == "lis":
-            out["pre lis"] = float(raw_all[:, start : start + width].abs().mean())
+        out[f"pre {short}"] = float(raw_all[:, start : start + width].abs().mean())
         out[f"Q {short}"] = float(q[i].mean())
         start += width
     out["Q out"] = float(((q < bounds[0] - 1.0) | (q > bounds[1] + 1.0)).float().mean())
@@ -318,6 +332,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("models", nargs="+", help="model.zip files of packs (e.g. archived checkpoints)")
     parser.add_argument("--experiment", default=None, help="the pack's experiment.json (names the runs)")
+    parser.add_argument("--task", choices=sorted(TASKS), default="comm-sparse",
+                        help="the task of the models (nav: 2-Agent Navigation, the first table only)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=12345)
     parser.add_argument("--continue-steps", type=int, default=0,
@@ -340,6 +356,9 @@ def main() -> None:
         parser.error(f"--continue-steps must be at least 0, got {args.continue_steps}")
     if args.buffer_of and not (args.on_buffer and os.path.isfile(os.path.join(args.buffer_of, "state.pkl"))):
         parser.error(f"--buffer-of needs --on-buffer and a checkpoint folder, got {args.buffer_of}")
+    if args.task != "comm-sparse" and (args.per_goal or args.on_buffer or args.continue_steps):
+        parser.error(f"--task {args.task} measures the first table only: --per-goal, --on-buffer and --continue-steps "
+                     "are Communicative Navigation's")  # fmt: skip
     if args.recent < 1 or args.samples < 1:
         parser.error(f"--recent and --samples must be at least 1, got {args.recent} and {args.samples}")
     for path in args.models:
@@ -355,16 +374,19 @@ def main() -> None:
         found = re.findall(r"\d+", os.path.basename(path))
         return int(found[-1]) if found else 0
 
+    agents = ("spk", "lis") if args.task == "comm-sparse" else ("agent_0", "agent_1")
+    columns = [f"{what} {agent}" for what in ("sat", "pre", "Q") for agent in agents]
+
     def rows(name: str, model: MADDPG) -> None:
         for k, (label, beta, constant) in enumerate(run_labels(args.experiment, model)):
-            d = diagnose(model, k, beta, constant, args.episodes, args.seed)
+            d = diagnose(model, k, beta, constant, args.episodes, args.seed, args.task)
             low, high = d["Q range"]  # type: ignore[misc]
-            print(f"| {name} | {label} | {d['any']:.2f} | {d['final']:.2f} | {d['sat spk']:.2f} | "
-                  f"{d['sat lis']:.2f} | {d['pre lis']:.2f} | {d['Q spk']:.1f} | {d['Q lis']:.1f} | "
-                  f"[{low:.0f}, {high:.0f}] | {d['Q out']:.2f} |", flush=True)  # fmt: skip
+            cells = [f"{d[c]:.1f}" if c.startswith("Q") else f"{d[c]:.2f}" for c in columns]
+            print(f"| {name} | {label} | {d['any']:.2f} | {d['final']:.2f} | " + " | ".join(cells)
+                  + f" | [{low:.0f}, {high:.0f}] | {d['Q out']:.2f} |", flush=True)  # fmt: skip
 
-    print("| model | run | any | final | sat spk | sat lis | pre lis | Q spk | Q lis | Q range | Q out |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| model | run | any | final | " + " | ".join(columns) + " | Q range | Q out |")
+    print("|---|---|---|---|" + "---|" * len(columns) + "---|---|")
     for path in sorted(args.models, key=step_of):
         name = display_name(path)
         rows(name, MADDPG.load(os.path.join(path, "model.zip") if os.path.isdir(path) else path, device="cpu"))

@@ -401,12 +401,37 @@ def test_collapse_diagnostics_measures_saturation_and_value_bounds(tmp_path):
     assert fresh["Q range"] == pytest.approx((-20.0, 80.0))  # (0.8 - 1) / 0.01 and 0.8 / 0.01
     assert diagnostics.diagnose(model, 0, 0.0, False, episodes=6, seed=0)["Q range"] == pytest.approx((-100.0, 0.0))
     assert 0.0 <= fresh["final"] <= fresh["any"] <= 1.0
-    assert fresh["sat lis"] < 0.5 and fresh["pre lis"] < 3.0  # a fresh actor is not saturated
+    assert fresh["sat lis"] < 0.5 and fresh["pre lis"] < 3.0 and fresh["pre spk"] < 3.0  # a fresh actor is not saturated
     with th.no_grad():
         for parameter in model.actor.parameters():
             parameter.mul_(50.0)
     saturated = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0)
     assert saturated["sat lis"] > 0.9 and saturated["sat spk"] > 0.9 and saturated["pre lis"] > 10.0
+
+
+def test_collapse_diagnostics_measures_two_agent_navigation_with_its_reward_range():
+    import torch as th
+
+    from sb3_macb import MACB, MADDPG
+    from sb3_macb.envs.vec_tasks import make_task_vec_env
+
+    diagnostics = load_script("collapse_diagnostics")
+    env_id, _ = diagnostics.TASKS["nav"]
+    model = MADDPG("MlpPolicy", make_task_vec_env(env_id, 2), n_runs=2, run_seeds=[0, 1],
+                   exploration=[None, MACB(0.8, counts=False)], policy_kwargs=dict(net_arch=[16]))  # fmt: skip
+    fresh = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0, task="nav")
+    # the sparse reward lies in [-1.5, 0]: (-1.5 + 0.8) / 0.01 and 0.8 / 0.01 with the constant bonus, -1.5 / 0.01 without
+    assert fresh["Q range"] == pytest.approx((-70.0, 80.0))
+    plain = diagnostics.diagnose(model, 0, 0.0, False, episodes=6, seed=0, task="nav")
+    assert plain["Q range"] == pytest.approx((-150.0, 0.0))
+    assert 0.0 <= fresh["final"] <= fresh["any"] <= 1.0
+    assert {"sat agent_0", "sat agent_1", "pre agent_0", "pre agent_1", "Q agent_0", "Q agent_1"} <= set(fresh)
+    assert fresh["sat agent_0"] < 0.5 and fresh["pre agent_1"] < 3.0  # a fresh actor is not saturated
+    with th.no_grad():
+        for parameter in model.actor.parameters():
+            parameter.mul_(50.0)
+    saturated = diagnostics.diagnose(model, 1, 0.8, True, episodes=6, seed=0, task="nav")
+    assert saturated["sat agent_0"] > 0.9 and saturated["sat agent_1"] > 0.9 and saturated["pre agent_0"] > 10.0
 
 
 def test_collapse_diagnostics_per_goal_splits_the_same_episodes_by_goal():
