@@ -121,8 +121,8 @@ def diagnose(
     solo = model.get_run(k)
     layout = solo.agent_layout
     env_id, lowest_reward = TASKS[task]
-    # the task's success is in every agent's info: Communicative Navigation's is the listener's, 2-Agent Navigation's shared
-    listener = layout.agents[agent_index(layout, "listener")] if task == "comm-sparse" else layout.agents[0]
+    # whose info carries the task's success: Communicative Navigation's listener; 2-Agent Navigation's is shared
+    reporter = layout.agents[agent_index(layout, "listener")] if task == "comm-sparse" else layout.agents[0]
     env = make_task_vec_env(env_id, episodes, {"reward": "sparse"})
     env.seed(seed)
     obs = env.reset()
@@ -138,7 +138,7 @@ def diagnose(
         actions.append(action)
         raws.append(raw)
         obs, _, dones, infos = env.step(solo.policy.unscale_action(action.cpu().numpy()))  # as predict(deterministic=True)
-        success = np.array([info["agent_infos"][listener]["success"] for info in infos])
+        success = np.array([info["agent_infos"][reporter]["success"] for info in infos])
         reached |= success
         if dones.all():
             final = success
