@@ -41,7 +41,8 @@ class ReferenceMADDPG:
     its logits' argmax (as 2 * one_hot - 1) and trains with a Gumbel-max sample carrying the straight-through
     Gumbel-softmax gradient; its logits are kept small by ``DISCRETE_LOGIT_PENALTY`` times their mean square. With
     shared parameters (every agent in one group, as ``share_parameters="all", share_critics=True``), one actor and one
-    critic object serve all agents, each input followed by the agent's one-hot id.
+    critic object serve all agents, each input followed by the agent's one-hot id. With ``centralized_critic=False``
+    (independent DDPG learners) critic ``i`` reads only agent ``i``'s observation and action.
 
     :param model: The model whose current parameters the reference copies.
     :param run: The run of a pack to copy (its parameter groups).
@@ -56,6 +57,7 @@ class ReferenceMADDPG:
         self.noise, self.noise_clip = model.target_policy_noise, model.target_noise_clip
         self.temperature = model.actor.gumbel_temperature
         self.n_critics = model.policy.n_critics
+        self.centralized = model.centralized_critic
         n_runs = model.n_runs
         self.updates = 0
         self.ids = th.eye(self.n_agents) if model.actor.shared is not None else None
@@ -75,7 +77,12 @@ class ReferenceMADDPG:
 
         def critic(net: GroupedMLP, c: int, i: int) -> nn.Sequential:
             g = c * n_runs + run if self.ids is not None else (c * n_runs + run) * self.n_agents + i
-            return _mlp([w.detach()[g] for w in net.weights], [b.detach()[g] for b in net.biases])
+            ws = [w.detach()[g] for w in net.weights]
+            if not self.centralized:  # only agent i's observation and action columns
+                obs_columns = th.arange(layout.obs_dim)[self.obs_slices[i]]
+                action_columns = layout.obs_dim + th.arange(layout.action_dim)[self.act_slices[i]]
+                ws[0] = ws[0][:, th.cat([obs_columns, action_columns])]
+            return _mlp(ws, [b.detach()[g] for b in net.biases])
 
         agents = [0] * self.n_agents if self.ids is not None else list(range(self.n_agents))  # shared: one object
         actors = {i: actor(model.actor.mu, i) for i in set(agents)}
@@ -95,6 +102,12 @@ class ReferenceMADDPG:
     def _with_id(self, x: th.Tensor, i: int) -> th.Tensor:
         """``x`` followed by agent ``i``'s one-hot id (shared parameters), else ``x``."""
         return x if self.ids is None else th.cat([x, self.ids[i].expand(len(x), self.n_agents)], dim=1)
+
+    def _critic_input(self, obs: th.Tensor, actions: th.Tensor, i: int) -> th.Tensor:
+        """Critic ``i``'s input: every agent's observation and action (centralized), else agent ``i``'s own."""
+        if not self.centralized:
+            return th.cat([obs[:, self.obs_slices[i]], actions[:, self.act_slices[i]]], 1)
+        return self._with_id(th.cat([obs, actions], 1), i)
 
     def _act(self, actors: list[nn.Sequential], obs: th.Tensor, gumbel: th.Tensor | None = None) -> tuple[list, list]:
         """Each agent's action and its raw outputs; discrete agents sample with ``gumbel`` (None: their argmax)."""
@@ -129,11 +142,11 @@ class ReferenceMADDPG:
             targets = []
             for i in range(self.n_agents):
                 next_q = th.stack(
-                    [cs[i](self._with_id(th.cat([next_obs, next_actions], 1), i))[:, 0] for cs in self.critic_targets]
+                    [cs[i](self._critic_input(next_obs, next_actions, i))[:, 0] for cs in self.critic_targets]
                 )
                 targets.append(rewards[:, i] + self.gamma * (1 - dones) * next_q.min(dim=0).values)
         critic_loss = sum(
-            ((cs[i](self._with_id(th.cat([obs, actions], 1), i))[:, 0] - targets[i]) ** 2).mean()
+            ((cs[i](self._critic_input(obs, actions, i))[:, 0] - targets[i]) ** 2).mean()
             for cs in self.critics
             for i in range(self.n_agents)
         )
@@ -146,7 +159,7 @@ class ReferenceMADDPG:
         actor_loss = 0.0
         for i in range(self.n_agents):
             parts = [own[j] if j == i else actions[:, sl] for j, sl in enumerate(self.act_slices)]
-            actor_loss = actor_loss - self.critics[0][i](self._with_id(th.cat([obs, *parts], 1), i)).mean()
+            actor_loss = actor_loss - self.critics[0][i](self._critic_input(obs, th.cat(parts, 1), i)).mean()
         if any(self.discrete):
             logits = th.cat([raw for raw, flag in zip(raws, self.discrete) if flag], dim=1)
             actor_loss = actor_loss + DISCRETE_LOGIT_PENALTY * logits.pow(2).mean()
@@ -257,12 +270,15 @@ def _replay(model: MADDPG, steps: list[dict], run: int, reference: ReferenceMADD
                          None if noise is None else noise[run], None if gumbel is None else gumbel[run])  # fmt: skip
 
 
-@pytest.mark.parametrize("config", ["pack", "macb", "matd3", "discrete", "discrete_pack", "shared", "shared_pack"])
+@pytest.mark.parametrize(
+    "config", ["pack", "macb", "matd3", "discrete", "discrete_pack", "shared", "shared_pack", "ddpg", "ddpg_matd3_pack"]
+)
 def test_train_matches_the_reference_in_packs_with_macb_matd3_discrete_and_shared_agents(config):
     """
     The same check for a pack of two runs (each run against its own reference), MACB's bonus in the rewards,
-    MATD3 (twin critics, delayed actor, clipped target noise), a discrete agent beside a continuous one, and two
-    identical agents sharing one actor and one critic (mpe2's simple_spread with N=2).
+    MATD3 (twin critics, delayed actor, clipped target noise), a discrete agent beside a continuous one, two
+    identical agents sharing one actor and one critic (mpe2's simple_spread with N=2), and independent critics
+    (``centralized_critic=False``: DDPG learners, alone and with MATD3's settings in a pack).
     """
     from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -292,11 +308,13 @@ def test_train_matches_the_reference_in_packs_with_macb_matd3_discrete_and_share
         kwargs.update(seed=3)
     if config == "macb":
         kwargs.update(exploration=MACB(beta=0.8, k=8))
-    model = (MATD3 if config == "matd3" else MADDPG)("MlpPolicy", env, **kwargs)
+    if config.startswith("ddpg"):
+        kwargs.update(centralized_critic=False)
+    model = (MATD3 if "matd3" in config else MADDPG)("MlpPolicy", env, **kwargs)
     model.learn(200 * runs)  # random warm-up transitions only
     references = [ReferenceMADDPG(model, run) for run in range(runs)]
     steps = _record_updates(model, 100, batch_size=32)
-    if config == "matd3":
+    if "matd3" in config:
         assert model.target_policy_noise > 0 and all("standard_normal" in step for step in steps)
     if discrete:
         assert any(references[0].discrete) and sum("gumbel" in step for step in steps) == 100
