@@ -344,6 +344,11 @@ def test_plots_from_a_small_run(tmp_path):
         assert path.stat().st_size > 10_000 and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     table = (tmp_path / "table.md").read_text()
     assert "| 32 | 0.60, 85% (n=2) | 1.00, 100% (n=1) |" in table
+    assert table.startswith(f"{tmp_path.name}: seeds per cell 1/2\n")  # a results.csv is named by its folder
+    other = tmp_path / "grid.csv"
+    other.write_text(results.read_text())
+    plot(["table", str(other), "-o", str(tmp_path / "grid"), "--title", "4e4 episodes"])
+    assert (tmp_path / "grid.md").read_text().startswith("grid: seeds per cell 1/2, 4e4 episodes\n")
 
 
 def test_sweep_pack_trains_queued_points_together_as_they_would_run_alone(tmp_path):

@@ -205,9 +205,17 @@ def sweep_table(
 def plot_table(
     results_csv: str, output: str, row: str = "exploration.k", column: str = "exploration.beta", title: str | None = None
 ) -> str:
-    """The paper's Table 1 (success rate, count-1 %) as ``OUTPUT.md`` and a heatmap ``OUTPUT.png``."""
+    """
+    The paper's Table 1 (success rate, count-1 %) as ``OUTPUT.md`` and a heatmap ``OUTPUT.png``, both captioned with
+    the sweep's name (the folder of a ``results.csv``, else the file's name without its extension), the seeds per cell
+    and ``title``.
+    """
     rows, cols, success, count1, seeds = sweep_table(results_csv, row, column)
-    heading = title
+    name = os.path.basename(results_csv)
+    name = os.path.basename(os.path.dirname(os.path.abspath(results_csv))) if name == "results.csv" else name
+    name = os.path.splitext(name)[0]
+    n_seeds = sorted({int(n) for n in np.unique(seeds) if n > 0})
+    caption = f"{name}: seeds per cell {'/'.join(map(str, n_seeds))}" + (f", {title}" if title else "")
     fmt = lambda v: f"{v:g}"  # noqa: E731
     lines = [f"| {row} \\ {column} | " + " | ".join(fmt(c) for c in cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for i, rv in enumerate(rows):
@@ -216,7 +224,7 @@ def plot_table(
             for j in range(len(cols))
         ]
         lines.append(f"| {fmt(rv)} | " + " | ".join(cells) + " |")
-    markdown = "\n".join(lines) + "\n\ncells: success rate, count-1 percentage (n = seeds)\n"
+    markdown = f"{caption}\n\n" + "\n".join(lines) + "\n\ncells: success rate, count-1 percentage (n = seeds)\n"
     with open(f"{output}.md", "w") as file:
         file.write(markdown)
 
@@ -238,10 +246,7 @@ def plot_table(
                     ax.text(j, i, f"{values[i, j]:.2f}" if title == "success rate" else f"{values[i, j]:.0f}",
                             ha="center", va="center", color="k" if bright else "w", fontsize=9)  # fmt: skip
         fig.colorbar(image, ax=ax)
-    n_seeds = sorted({int(n) for n in np.unique(seeds) if n > 0})
-    budget = f", {heading}" if heading else ""
-    fig.suptitle(f"{os.path.basename(os.path.dirname(os.path.abspath(results_csv)))}: seeds per cell "
-                 f"{'/'.join(map(str, n_seeds))}{budget}")  # fmt: skip
+    fig.suptitle(caption)
     fig.tight_layout()
     fig.savefig(f"{output}.png", dpi=120)
     plt.close(fig)

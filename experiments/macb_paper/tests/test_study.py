@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from sb3_macb.exploration import MACB
-from sb3_macb.zoo.plots import sweep_table
+from sb3_macb.zoo.plots import plot_table, sweep_table
 from sb3_macb.zoo.sweep import load_config
 
 STUDY = Path(__file__).resolve().parents[1]  # experiments/macb_paper
@@ -286,9 +286,17 @@ def test_table1_analysis_applies_its_registered_rules(tmp_path):
         write(base / "macb_constant" / f"seed_{seed}", 0.5, 0.0)
     report = analysis.analyse(str(grid), str(base), 3)
     assert "- Short of 3 complete seeds: beta 0.05, k 64." in report and "INTERIM" in report
+    figure = load_script("table1_figure")  # the figure refuses a grid short of the seeds, as the analysis flags it
+    with pytest.raises(SystemExit, match="short of 3 complete seeds: beta 0.05, k 64"):
+        figure.write_csv(str(grid), str(base), 3, str(tmp_path / "t1.csv"))
     write(grid / "macb_joint+exploration.beta=0.05+exploration.k=64" / "seed_2", 0.6, counts[64])
     report = analysis.analyse(str(grid), str(base), 3)
     assert "INTERIM" not in report
+    assert figure.write_csv(str(grid), str(base), 3, str(tmp_path / "t1.csv")) == "MADDPG 0.50, constant bonus 0.50"
+    assert len((tmp_path / "t1.csv").read_text().splitlines()) == 1 + 16 * 3  # seed 3 left out
+    table = plot_table(str(tmp_path / "t1.csv"), str(tmp_path / "t1"))
+    assert "| 32 | 0.50, 80% (n=3) | 0.50, 80% (n=3) | 0.50, 80% (n=3) | 0.50, 80% (n=3) |" in table
+    assert "| 512 | 0.60, 100% (n=3) | 0.60, 100% (n=3) | 0.60, 100% (n=3) | 0.60, 100% (n=3) |" in table
     # 12 cells at 0.6 are above MADDPG's 0.5; the four k = 32 cells equal it
     assert "- K1, MACB above MADDPG in most cells: **confirmed**; 12 of 16 cells above MADDPG's 0.500, 0 below" in report
     assert "- K2, k = 512 row against k = 32 row: **confirmed**; row means 0.600 and 0.500" in report
