@@ -211,9 +211,8 @@ def plot_table(
     and ``title``.
     """
     rows, cols, success, count1, seeds = sweep_table(results_csv, row, column)
-    name = os.path.basename(results_csv)
-    name = os.path.basename(os.path.dirname(os.path.abspath(results_csv))) if name == "results.csv" else name
-    name = os.path.splitext(name)[0]
+    path = os.path.abspath(results_csv)
+    name = os.path.basename(os.path.dirname(path) if os.path.basename(path) == "results.csv" else os.path.splitext(path)[0])
     n_seeds = sorted({int(n) for n in np.unique(seeds) if n > 0})
     caption = f"{name}: seeds per cell {'/'.join(map(str, n_seeds))}" + (f", {title}" if title else "")
     fmt = lambda v: f"{v:g}"  # noqa: E731
@@ -230,20 +229,20 @@ def plot_table(
 
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    for ax, values, title, cmap in (
+    for ax, values, panel, cmap in (
         (axes[0], success, "success rate", "viridis"),
         (axes[1], 100 * count1, "count-1 %", "magma"),
     ):
         image = ax.imshow(values, cmap=cmap, aspect="auto", origin="lower")
         ax.set_xticks(range(len(cols)), [fmt(c) for c in cols])
         ax.set_yticks(range(len(rows)), [fmt(r) for r in rows])
-        ax.set(xlabel=column, ylabel=row, title=title)
+        ax.set(xlabel=column, ylabel=row, title=panel)
         low, high = np.nanmin(values), np.nanmax(values)
         for i in range(len(rows)):
             for j in range(len(cols)):
                 if not np.isnan(values[i, j]):
                     bright = high > low and (values[i, j] - low) / (high - low) > 0.6  # dark text on light cells
-                    ax.text(j, i, f"{values[i, j]:.2f}" if title == "success rate" else f"{values[i, j]:.0f}",
+                    ax.text(j, i, f"{values[i, j]:.2f}" if panel == "success rate" else f"{values[i, j]:.0f}",
                             ha="center", va="center", color="k" if bright else "w", fontsize=9)  # fmt: skip
         fig.colorbar(image, ax=ax)
     fig.suptitle(caption)
